@@ -1,0 +1,1 @@
+"""Raster → centerline strokes, stroke augmentation, and the procedural pencil rasterizer."""

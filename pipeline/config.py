@@ -1,0 +1,29 @@
+"""Stage settings and their hashes.
+
+Each stage's output folder is keyed by ``stage_key(settings, upstream_key)`` so changing one
+setting re-runs exactly the stages it affects (and everything downstream of them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from typing import Any
+
+
+def settings_dict(settings: Any) -> dict:
+    if dataclasses.is_dataclass(settings):
+        return dataclasses.asdict(settings)
+    return dict(settings)
+
+
+def settings_hash(settings: Any, upstream: str = "", length: int = 10) -> str:
+    """Short stable hash of a settings object (dataclass or dict) chained with upstream's hash."""
+    payload = json.dumps({"s": settings_dict(settings), "up": upstream}, sort_keys=True, default=str)
+    return hashlib.sha256(payload.encode()).hexdigest()[:length]
+
+
+def stage_key(stage: str, settings: Any, upstream: str = "") -> str:
+    """Folder name for a stage's outputs: ``<stage>-<hash>``."""
+    return f"{stage}-{settings_hash(settings, upstream)}"

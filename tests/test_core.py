@@ -1,0 +1,39 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.atomic import atomic_path, read_json, write_json
+from pipeline.config import settings_hash, stage_key
+from pipeline.seeding import derive_seed, rng_for
+
+
+def test_seed_depends_on_every_key_part():
+    base = derive_seed(0, "render", "car", "00001", 0, 0)
+    assert base == derive_seed(0, "render", "car", "00001", 0, 0)
+    for other in [(1, "render", "car", "00001", 0, 0), (0, "augment", "car", "00001", 0, 0),
+                  (0, "render", "mug", "00001", 0, 0), (0, "render", "car", "00002", 0, 0),
+                  (0, "render", "car", "00001", 1, 0), (0, "render", "car", "00001", 0, 1)]:
+        assert derive_seed(*other) != base
+    assert np.array_equal(rng_for(3, "x").random(4), rng_for(3, "x").random(4))
+
+
+def test_settings_hash_changes_with_settings_and_upstream():
+    a = settings_hash({"views": 4})
+    assert a == settings_hash({"views": 4})
+    assert a != settings_hash({"views": 5})
+    assert a != settings_hash({"views": 4}, upstream="abc")
+    assert stage_key("render", {"views": 4}).startswith("render-")
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path):
+    target = tmp_path / "out.json"
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("killed")
+    assert not target.exists()
+    assert os.listdir(tmp_path) == []
+    write_json(target, {"b": 1, "a": [1, 2]})
+    assert read_json(target) == {"a": [1, 2], "b": 1}

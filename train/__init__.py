@@ -1,0 +1,1 @@
+"""Coons-patch geometry, templates, losses, the patch-regression model, trainer and export."""

@@ -1,0 +1,1 @@
+"""Luigi tasks (`luigi --module workflows BuildDataset --local-scheduler`)."""
