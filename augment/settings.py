@@ -1,0 +1,104 @@
+"""Settings of the augment stage (hashed into the stage's folder name).
+
+Lengths and widths are in pixels of a 256-pixel *reference* canvas (``REFERENCE_SIZE``), whatever
+the size of the render read or of the sketch written, so one setting means the same look at 128²
+(training) and at 512² (previews). Ranges follow what peers use for synthetic sketches
+(SynDraw's stroke disturber, SketchRNN-style augmentation; see docs/augment.md):
+per-stroke rotation ≤ 2.5°, scale 0.9–1.1, smooth lateral noise, 1–2 overdrawn copies,
+ends extended/shortened, width 2.5 ± 0.75 px, splitting p ≈ 0.2–0.5 at 1–3 points with 0–4 px
+gaps, stroke drop ≤ 0.1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+REFERENCE_SIZE = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorizeSettings:
+    """Raster → centerline strokes. Lengths in pixels of the input image."""
+
+    ink_threshold: int | None = None   # gray level below which a pixel is ink; None = Otsu
+    max_ink_fraction: float = 0.5      # more ink than this is not a line drawing → error
+    spur_length: float = 5.0           # tip branches shorter than this at a junction are pruned
+    junction_merge: float = 3.0        # junction pixels closer than this form one junction
+    join_angle_deg: float = 45.0       # branches whose tangents bend less than this continue
+    tangent_length: float = 7.0        # arc length used to estimate a branch's end tangent
+    snap_radius: float = 4.0           # corner re-snap: snapped point must lie this close
+    corner_angle_deg: float = 50.0     # turns sharper than this (over ±tangent_length/2) are corners
+    hole_area: int = 6                 # ink holes up to this many px are filled (no tiny loops)
+    link_gap: float = 3.5              # stroke ends this close, facing each other, are joined
+    link_angle_deg: float = 50.0       # ... if the gap bends each end's tangent less than this
+    min_stroke_length: float = 4.0     # shorter strokes (specks) are dropped
+    smooth_sigma: float = 1.0          # Gaussian smoothing of the pixel chain (removes stairs)
+    simplify_epsilon: float = 0.4      # Douglas–Peucker tolerance
+
+
+@dataclasses.dataclass(frozen=True)
+class AugmentSettings:
+    """How each rendered view becomes K pencil-sketch variants."""
+
+    variants: int = 4
+    out_size: int = 128
+    # One width per variant, in rotation (variant k uses widths[k % len]); SynDraw: 2.5 ± 0.75.
+    widths: tuple[float, ...] = (1.5, 2.5, 3.5)
+    vectorize: VectorizeSettings = dataclasses.field(default_factory=VectorizeSettings)
+    resample_spacing: float = 1.0      # strokes are resampled (Catmull-Rom) at this spacing
+
+    # Splitting (SynDraw / peers: p ≈ 0.2–0.5, 1–3 points, 0–4 px gaps).
+    split_prob: float = 0.35
+    split_max_points: int = 3
+    split_gap: tuple[float, float] = (0.5, 4.0)
+    split_min_piece: float = 6.0       # never leave a piece shorter than this
+    # Truncation of ends (shorten each end by up to this fraction of the stroke / px).
+    truncate_prob: float = 0.5
+    truncate_max_fraction: float = 0.12
+    truncate_max_px: float = 6.0
+    # Extension / overshoot of ends along their tangent.
+    extend_prob: float = 0.3
+    extend_max_px: float = 4.0
+    # Smooth lateral wobble: amplitude (px) and wavelength (px) of the offset along the normal.
+    wobble_amplitude: float = 0.8
+    wobble_wavelength: float = 40.0
+    # Per-stroke similarity jitter (peers: rotation ≤ 2.5°, scale 0.9–1.1).
+    jitter_rotation_deg: float = 1.5
+    jitter_scale: float = 0.03
+    # Overdrawn duplicate strokes (peers: 1–2 copies).
+    overdraw_prob: float = 0.15
+    overdraw_max_copies: int = 2
+    overdraw_offset: float = 1.2
+    # Dropping strokes (peers: drop ≤ 0.1): short strokes go with drop_short_prob.
+    drop_short_length: float = 8.0
+    drop_short_prob: float = 0.3
+    drop_prob: float = 0.02
+
+    # Pencil look.
+    darkness: tuple[float, float] = (0.55, 0.95)   # per-stroke graphite opacity
+    taper_length: float = 10.0                     # px over which pressure ramps at each end
+    pressure_noise: float = 0.15                   # slow relative width variation
+    grain: float = 0.45                            # 0 = solid graphite, 1 = only paper tooth
+    paper_mottle: float = 0.02                     # low-frequency paper brightness variation
+    supersample: int = 4
+
+    def __post_init__(self) -> None:
+        # Overrides arrive as JSON (lists, dicts): normalize so equal settings hash equally.
+        if isinstance(self.vectorize, dict):
+            object.__setattr__(self, "vectorize", VectorizeSettings(**self.vectorize))
+        for name in ("widths", "split_gap", "darkness"):
+            object.__setattr__(self, name, tuple(float(x) for x in getattr(self, name)))
+        if self.variants < 1 or self.out_size < 8:
+            raise ValueError("variants must be >= 1 and out_size >= 8")
+        if len(self.widths) < 1 or min(self.widths) <= 0:
+            raise ValueError(f"widths must be positive: {self.widths}")
+        for name in ("split_prob", "truncate_prob", "extend_prob", "overdraw_prob",
+                     "drop_short_prob", "drop_prob"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1]")
+        if self.supersample < 1:
+            raise ValueError("supersample must be >= 1")
+
+    def width_for(self, variant: int) -> float:
+        """Width (reference px) drawn by ``variant``: the widths in rotation."""
+        return float(self.widths[variant % len(self.widths)])

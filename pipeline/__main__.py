@@ -1,0 +1,48 @@
+"""Dataset commands: `python -m pipeline verify <dataset-dir>` and `python -m pipeline preview <dataset-dir> --out DIR`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from pipeline.verify import verify_dataset
+
+    problems = verify_dataset(Path(args.dataset_dir))
+    for p in problems:
+        print(f"MISMATCH {p}")
+    if problems:
+        print(f"FAILED: {len(problems)} problem(s) in {args.dataset_dir}")
+        return 1
+    print(f"OK: every shard in {args.dataset_dir} matches manifest.json")
+    return 0
+
+
+def _preview(args: argparse.Namespace) -> int:
+    from pipeline.preview import write_previews
+
+    for path in write_previews(Path(args.dataset_dir), Path(args.out), args.max_models, args.categories):
+        print(path)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    v = sub.add_parser("verify", help="re-check every shard against manifest.json; exit 1 on any mismatch")
+    v.add_argument("dataset_dir")
+    v.set_defaults(func=_verify)
+    p = sub.add_parser("preview", help="write a contact-sheet PNG per category from the shards")
+    p.add_argument("dataset_dir")
+    p.add_argument("--out", required=True, help="folder for <category>.png")
+    p.add_argument("--max-models", type=int, default=16, help="rows (models) per sheet")
+    p.add_argument("--categories", nargs="*", default=None, help="only these categories")
+    p.set_defaults(func=_preview)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,187 @@
+"""Mesh preparation: source mesh → watertight, decimated, verified, unit-sphere mesh + samples.
+
+Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, samples.npy, record.json}``,
+record last, so a killed batch resumes where it stopped. ``prepare_batch`` is what the Luigi task
+calls; ``prepare_model`` does one model and raises ModelError for bad input.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from pipeline.atomic import write_npy
+from pipeline.errors import ModelError
+from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.mesh_checks import check_input, closed_surface_problems
+from pipeline.mesh_io import load_mesh, sha256_file, write_ply
+from pipeline.normalize import apply_transform, transform_box, unit_sphere_transform
+from pipeline.prepare_settings import PrepareSettings
+from pipeline.sampling import sample_surface
+from pipeline.seeding import derive_seed, rng_for
+from pipeline.watertight import clean_solid, decimate, make_watertight
+
+__all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
+
+MESH_FILE = "mesh.ply"
+SAMPLES_FILE = "samples.npy"
+METHOD = {
+    "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
+    "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
+    "normalization": "bbox centre to origin, farthest vertex at radius 1",
+    "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
+}
+
+
+def repair_mesh(
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    settings: PrepareSettings,
+    seed: int,
+    timings: dict | None = None,
+) -> tuple[trimesh.Trimesh, dict]:
+    """Watertight + decimated + verified solid in the source frame, and how it was obtained.
+
+    Tries the configured resolution, then coarser ones; raises ModelError listing what failed.
+    """
+    timings = {} if timings is None else timings
+    failures = []
+    resolution = settings.resolution
+    for attempt in range(settings.fallback_attempts + 1):
+        t = time.perf_counter()
+        wv, wf = make_watertight(vertices, faces, resolution, seed)
+        timings["watertight"] = timings.get("watertight", 0.0) + time.perf_counter() - t
+        t = time.perf_counter()
+        dv, df = decimate(wv, wf, settings.max_faces)
+        timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
+        t = time.perf_counter()
+        mesh = clean_solid(dv, df, settings.min_component_fraction)
+        problems = closed_surface_problems(mesh, settings.max_bodies)
+        if len(mesh.faces) > settings.max_faces:
+            problems.append(f"{len(mesh.faces)} faces after decimation > max_faces {settings.max_faces}")
+        timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - t
+        if not problems:
+            info = {
+                "resolution": resolution,
+                "attempts": attempt + 1,
+                "watertight_faces": int(len(wf)),
+                "output_faces": int(len(mesh.faces)),
+                "rejected": failures,
+            }
+            return mesh, info
+        failures.append({"resolution": resolution, "problems": problems})
+        resolution = max(resolution // 2, 100)
+    detail = "; ".join(f"resolution {f['resolution']}: {', '.join(f['problems'])}" for f in failures)
+    raise ModelError(path, f"repair failed verification: {detail}")
+
+
+def _read_sidecar(path: Path) -> dict | None:
+    """The procedural generator's sidecar (part labels, cuboids, defects) if the source has one."""
+    side = path.with_suffix(".json")
+    if not side.is_file():
+        return None
+    try:
+        data = json.loads(side.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and "parts" in data else None
+
+
+def _sidecar_fields(side: dict, center: np.ndarray, scale: float) -> dict:
+    cuboids = []
+    for c in side.get("cuboids", []):
+        lo, hi = transform_box(np.asarray(c["lo"], float), np.asarray(c["hi"], float), center, scale)
+        cuboids.append({"label": c["label"], "lo": lo, "hi": hi})
+    return {
+        "parts": [{"label": p["label"], "n_faces": p.get("n_faces")} for p in side.get("parts", [])],
+        "cuboids": cuboids,
+        "defects": list(side.get("defects", [])),
+    }
+
+
+def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> dict:
+    """Prepare one model into ``out_dir`` (mesh.ply, samples.npy, record.json); returns the record.
+
+    Raises ModelError for bad input or a repair that fails verification (no record written).
+    """
+    out_dir = Path(out_dir)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+    path = Path(ref.path)
+
+    t = time.perf_counter()
+    vertices, faces = load_mesh(path, settings.max_input_bytes)
+    sha = sha256_file(path)
+    check_input(path, vertices, faces, settings.max_input_faces, settings.max_abs_coordinate)
+    timings["load"] = time.perf_counter() - t
+
+    # The Manifold octree seed is keyed like every other random choice (int32 range for the C++).
+    wt_seed = derive_seed(settings.seed, "prepare-watertight", ref.category, ref.model_id) % (2**31 - 1)
+    mesh, repair = repair_mesh(path, vertices, faces, settings, wt_seed, timings)
+
+    t = time.perf_counter()
+    center, scale = unit_sphere_transform(mesh.vertices)
+    # Quantize to float32 (what the PLY stores) before sampling so samples lie on the stored mesh.
+    norm_v = apply_transform(mesh.vertices, center, scale).astype(np.float32).astype(np.float64)
+    final = trimesh.Trimesh(norm_v, mesh.faces, process=False)
+    timings["normalize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    samples = sample_surface(final, settings.n_samples, rng_for(settings.seed, "prepare", ref.category, ref.model_id))
+    timings["sample"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    write_ply(out_dir / MESH_FILE, final.vertices, final.faces)
+    write_npy(out_dir / SAMPLES_FILE, samples)
+    timings["write"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+
+    fields = {
+        "category": ref.category,
+        "model_id": ref.model_id,
+        "source": {"kind": ref.source, "path": str(path), "sha256": sha},
+        "normalization": {"center": center.tolist(), "scale": scale},
+        "faces": {"input": int(len(faces)), "watertight": repair["watertight_faces"], "output": int(len(final.faces))},
+        "vertices": {"input": int(len(vertices)), "output": int(len(final.vertices))},
+        "method": {**METHOD, "resolution": repair["resolution"], "attempts": repair["attempts"],
+                   "rejected_attempts": repair["rejected"], "max_faces": settings.max_faces},
+        "n_samples": int(len(samples)),
+        "files": {"mesh": MESH_FILE, "samples": SAMPLES_FILE},
+        "settings": dataclasses.asdict(settings),
+        "timings": {k: round(v, 4) for k, v in timings.items()},
+    }
+    side = _read_sidecar(path)
+    if side is not None:
+        fields.update(_sidecar_fields(side, center, scale))
+    return write_ok(out_dir, **fields)
+
+
+def prepare_batch(
+    refs: list[ModelRef], stage_dir: Path, settings: PrepareSettings, progress: Progress = None
+) -> list[dict]:
+    """Prepare every model not yet done; one bad model is recorded as failed, never raised."""
+    records = []
+    total = len(refs)
+    for i, ref in enumerate(refs):
+        folder = model_dir(stage_dir, ref.category, ref.model_id)
+        rec = read_record(folder)
+        if rec is None:
+            try:
+                rec = prepare_model(ref, folder, settings)
+            except ModelError as err:
+                rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,
+                                   source={"kind": ref.source, "path": str(ref.path)})
+            except Exception as exc:  # an unexpected bug on one model must not sink the batch
+                err = ModelError(ref.path, f"{type(exc).__name__}: {exc}")
+                rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,
+                                   source={"kind": ref.source, "path": str(ref.path)})
+        records.append(rec)
+        if progress is not None:
+            progress(i + 1, total, f"prepare {ref.category}/{ref.model_id}: {rec['status']}")
+    return records

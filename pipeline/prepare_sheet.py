@@ -1,0 +1,85 @@
+"""Contact sheet of raw vs prepared shapes: per category a row of (raw, prepared) pairs.
+
+    .venv/bin/python -m pipeline.prepare_sheet --out sheets/prepared.png --per-category 3
+
+Models are prepared (or reused, if already prepared) under ``--work``; raw thumbnails are drawn
+from the source files, prepared ones from mesh.ply, both by the CPU thumbnail renderer.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import stage_key
+from pipeline.errors import ModelError
+from pipeline.mesh_io import load_mesh, read_ply
+from pipeline.prepare import MESH_FILE, PrepareSettings, prepare_batch
+from pipeline.sheets import contact_sheet, save_png
+from pipeline.sources import list_categories, list_models
+from pipeline.thumbnails import render_mesh
+
+RAW_COLOR = (0.85, 0.72, 0.6)
+PREPARED_COLOR = (0.62, 0.74, 0.88)
+VIEWS = {"mug": (120.0, 25.0), "guitar": (25.0, 15.0), "gun": (60.0, 15.0), "knife": (60.0, 20.0)}
+
+
+def _thumb(vertices: np.ndarray, faces: np.ndarray, color, size: int, category: str) -> np.ndarray:
+    az, el = VIEWS.get(category, (30.0, 20.0))
+    return render_mesh(vertices, faces, size=size, azimuth_deg=az, elevation_deg=el, face_colors=np.array(color))
+
+
+def build_sheet(source: str, work: Path, per_category: int, seed: int, size: int,
+                categories: list[str], settings: PrepareSettings) -> np.ndarray:
+    """Prepare the first ``per_category`` models of each category and draw raw/prepared pairs."""
+    stage = Path(work) / stage_key("prepare", settings, upstream=f"{source}:{seed}")
+    blank = np.full((size, size, 3), 255, np.uint8)
+    images, labels = [], []
+    for cat in categories:
+        refs = list_models(source, cat, per_category, seed, Path(work))
+        records = prepare_batch(refs, stage, settings)
+        for ref, rec in zip(refs, records):
+            try:
+                v, f = load_mesh(ref.path, settings.max_input_bytes)
+                images.append(_thumb(v, f, RAW_COLOR, size, cat))
+                labels.append(f"{cat} {ref.model_id} raw {len(f)}f")
+            except ModelError as err:
+                images.append(blank)
+                labels.append(f"{cat} {ref.model_id} raw: {err.reason}")
+            if rec["status"] == "ok":
+                v, f = read_ply(stage / cat / ref.model_id / MESH_FILE)
+                images.append(_thumb(v, f, PREPARED_COLOR, size, cat))
+                labels.append(f"prepared {len(f)}f")
+            else:
+                images.append(blank)
+                labels.append(f"FAILED: {rec['error']['reason']}")
+        # Pad short categories so each category keeps its own row.
+        for _ in range(2 * (per_category - len(refs))):
+            images.append(blank)
+            labels.append("")
+    return contact_sheet(images, labels, cols=2 * per_category)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=Path("sheets/prepared.png"))
+    ap.add_argument("--source", default="procedural", help="'procedural', a ShapeNet v2 root or a <root>/<category>/ folder")
+    ap.add_argument("--work", type=Path, default=Path("work"), help="work dir for sources and prepared meshes")
+    ap.add_argument("--per-category", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--size", type=int, default=160, help="thumbnail size in pixels")
+    ap.add_argument("--categories", nargs="*", default=None, help="default: all categories of the source")
+    ap.add_argument("--resolution", type=int, default=PrepareSettings.resolution)
+    ap.add_argument("--max-faces", type=int, default=PrepareSettings.max_faces)
+    args = ap.parse_args(argv)
+    settings = PrepareSettings(resolution=args.resolution, max_faces=args.max_faces)
+    categories = args.categories or list_categories(args.source)
+    sheet = build_sheet(args.source, args.work, args.per_category, args.seed, args.size, categories, settings)
+    save_png(args.out, sheet)
+    print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,369 @@
+"""WebDataset tar shards: one sample per model, written byte-deterministically.
+
+A sample's key is ``<category>_<model_id>``; its members are ``points.npy``, one
+``sketch_<view>_<variant>.png`` per view and variant, ``strokes.json``, ``cameras.json`` and
+``meta.json``. Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
+every header field is fixed (sorted member order, mtime 0, uid/gid 0, empty user/group names,
+mode 0o644, GNU format): the same inputs give the same bytes.
+
+Shards of one category go to ``<dataset-dir>/<category>/<split>-NNNNN.tar``. They are first
+written into a staging folder, then moved into place one by one; a shard whose bytes did not
+change is not rewritten, so its mtime stays.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import os
+import re
+import shutil
+import tarfile
+import tempfile
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from pipeline.atomic import dumps_json, read_json
+from pipeline.errors import ModelError
+from pipeline.seeding import rng_for
+from pipeline.splits import DEFAULT_FRACTIONS, SPLITS, split_of
+
+TAR_FORMAT = tarfile.GNU_FORMAT
+MIN_POINTS = 7000
+SHARD_RE = re.compile(r"^(train|val|test)-(\d{5})\.tar$")
+REQUIRED_MEMBERS = ("points.npy", "strokes.json", "cameras.json", "meta.json")
+_BLOCK = tarfile.BLOCKSIZE
+
+
+@dataclasses.dataclass(frozen=True)
+class ShardSettings:
+    """How samples are packed. Part of the shard stage key."""
+
+    max_samples_per_shard: int = 256
+    max_bytes_per_shard: int = 512 * 2**20
+    points: int = 16384  # points per sample; the prepared samples are subsampled when larger
+    split_fractions: tuple[float, float, float] = DEFAULT_FRACTIONS
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelDirs:
+    """Where one model's finished stage outputs are."""
+
+    model_id: str
+    prepare_dir: Path
+    render_dir: Path
+    augment_dir: Path
+
+
+@dataclasses.dataclass
+class Sample:
+    key: str
+    split: str
+    members: dict[str, bytes]  # member suffix ("points.npy", ...) -> bytes
+
+    @property
+    def tar_size(self) -> int:
+        """Bytes this sample takes in a tar (one header block per member + padded data)."""
+        return sum(_BLOCK + -(-len(b) // _BLOCK) * _BLOCK for b in self.members.values())
+
+
+@dataclasses.dataclass(frozen=True)
+class ShardInfo:
+    name: str
+    split: str
+    samples: int
+    bytes: int
+    sha256: str
+    keys: tuple[str, ...]
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "samples": self.samples, "bytes": self.bytes,
+                "sha256": self.sha256, "keys": list(self.keys)}
+
+
+def sample_key(category: str, model_id: str) -> str:
+    """WebDataset key; dots would split the key from the extension, so they become '_'."""
+    return f"{category}_{model_id}".replace(".", "_")
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------- sample assembly
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise ModelError(path, f"cannot read: {e.strerror or e}") from e
+
+
+def _load_points(path: Path, n: int, key: tuple) -> np.ndarray:
+    try:
+        pts = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ModelError(path, f"cannot load surface samples: {e}") from e
+    if pts.ndim != 2 or pts.shape[1] != 6 or not np.isfinite(pts).all():
+        raise ModelError(path, f"surface samples must be finite (N, 6), got shape {pts.shape}")
+    if len(pts) > n:
+        # a seeded subset, sorted so the member keeps the prepared order
+        idx = np.sort(rng_for(*key).choice(len(pts), size=n, replace=False))
+        pts = pts[idx]
+    if len(pts) < MIN_POINTS:
+        raise ModelError(path, f"only {len(pts)} surface samples, need at least {MIN_POINTS}")
+    return np.ascontiguousarray(pts, dtype=np.float32)
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _record(folder: Path) -> dict:
+    path = Path(folder) / "record.json"
+    try:
+        rec = read_json(path)
+    except (OSError, ValueError) as e:
+        raise ModelError(path, f"cannot read stage record: {e}") from e
+    if rec.get("status") != "ok":
+        reason = (rec.get("error") or {}).get("reason", "stage did not finish")
+        raise ModelError(path, f"stage record is not ok: {reason}")
+    return rec
+
+
+def _source_fields(rec: dict, portable) -> dict:
+    """Source path and sha256 from a prepare record, whatever nesting the record uses."""
+    src = rec.get("source")
+    path = sha = None
+    if isinstance(src, dict):
+        path = src.get("path")
+        sha = src.get("sha256")
+    elif isinstance(src, str):
+        path = src
+    path = path or rec.get("source_path")
+    sha = sha or rec.get("source_sha256") or rec.get("sha256")
+    return {"source": portable(path) if path else None, "source_sha256": sha}
+
+
+def _part_labels(rec: dict) -> list[str] | None:
+    for name in ("part_labels", "parts", "labels"):
+        val = rec.get(name)
+        if isinstance(val, list) and val:
+            return [p.get("label") if isinstance(p, dict) else str(p) for p in val]
+    return None
+
+
+def assemble_sample(
+    category: str,
+    dirs: ModelDirs,
+    settings: ShardSettings,
+    seed: int,
+    settings_hash: str,
+    portable=lambda p: p,
+) -> Sample:
+    """Gather one model's members from the prepare, render and augment folders.
+
+    ``portable`` maps absolute paths to ones that do not depend on where the build ran, so two
+    builds in different folders write the same ``meta.json``. Raises ModelError on bad input.
+    """
+    prep = _record(dirs.prepare_dir)
+    _record(dirs.render_dir)
+    _record(dirs.augment_dir)
+    key = sample_key(category, dirs.model_id)
+    points = _load_points(dirs.prepare_dir / "samples.npy", settings.points,
+                          (seed, "shards", category, dirs.model_id))
+    members: dict[str, bytes] = {"points.npy": _npy_bytes(points)}
+    sketches = sorted(p for p in Path(dirs.augment_dir).glob("sketch_*_*.png"))
+    if not sketches:
+        raise ModelError(dirs.augment_dir, "no sketch_<view>_<variant>.png images")
+    for p in sketches:
+        members[p.name] = _read_bytes(p)
+    members["strokes.json"] = _read_bytes(dirs.augment_dir / "strokes.json")
+    members["cameras.json"] = _read_bytes(dirs.render_dir / "cameras.json")
+    meta = {
+        "key": key,
+        "category": category,
+        "model_id": dirs.model_id,
+        **_source_fields(prep, portable),
+        "normalization": prep.get("normalization"),
+        "part_labels": _part_labels(prep),
+        "seed": seed,
+        "settings_hash": settings_hash,
+        "split": split_of(category, dirs.model_id, settings.split_fractions),
+        "sketches": [p.name for p in sketches],
+        "points": int(len(points)),
+    }
+    members["meta.json"] = dumps_json(meta).encode()
+    return Sample(key=key, split=meta["split"], members=members)
+
+
+# ---------------------------------------------------------------- tar writing / reading
+
+def _tarinfo(name: str, size: int) -> tarfile.TarInfo:
+    info = tarfile.TarInfo(name)
+    info.size = size
+    info.mtime = 0
+    info.mode = 0o644
+    info.uid = info.gid = 0
+    info.uname = info.gname = ""
+    info.type = tarfile.REGTYPE
+    return info
+
+
+class ShardWriter:
+    """Append samples to one tar with fixed headers; the file is complete only after close()."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._file = open(self.path, "wb")
+        self._tar = tarfile.open(fileobj=self._file, mode="w", format=TAR_FORMAT)
+        self.keys: list[str] = []
+        # end-of-archive blocks + padding to a full record: an upper bound of the tar's overhead
+        self.size = tarfile.RECORDSIZE
+
+    def add(self, sample: Sample) -> None:
+        for suffix in sorted(sample.members):
+            data = sample.members[suffix]
+            self._tar.addfile(_tarinfo(f"{sample.key}.{suffix}", len(data)), io.BytesIO(data))
+        self.keys.append(sample.key)
+        self.size += sample.tar_size
+
+    def close(self) -> None:
+        self._tar.close()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+
+
+def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
+                       settings: ShardSettings) -> list[ShardInfo]:
+    """Write ``<split>-NNNNN.tar`` files into ``out_dir`` from samples in key order.
+
+    A shard closes when it holds max_samples_per_shard samples or the next sample would push it
+    past max_bytes_per_shard (a single oversized sample still gets a shard of its own).
+    """
+    infos: list[ShardInfo] = []
+    writer: ShardWriter | None = None
+
+    def close() -> None:
+        assert writer is not None
+        writer.close()
+        infos.append(ShardInfo(writer.path.name, split, len(writer.keys), writer.path.stat().st_size,
+                               file_sha256(writer.path), tuple(writer.keys)))
+
+    for sample in samples:
+        if writer is not None and (
+            len(writer.keys) >= settings.max_samples_per_shard
+            or writer.size + sample.tar_size > settings.max_bytes_per_shard
+        ):
+            close()
+            writer = None
+        if writer is None:
+            writer = ShardWriter(Path(out_dir) / f"{split}-{len(infos):05d}.tar")
+        writer.add(sample)
+    if writer is not None:
+        close()
+    return infos
+
+
+def iter_shard(path: Path) -> Iterator[tuple[str, dict[str, bytes]]]:
+    """Samples of a shard as (key, {suffix: bytes}), read with plain tarfile, in tar order."""
+    current: str | None = None
+    members: dict[str, bytes] = {}
+    with tarfile.open(path, mode="r:") as tar:
+        for info in tar:
+            if not info.isfile():
+                continue
+            base = info.name.rsplit("/", 1)[-1]
+            key, _, suffix = base.partition(".")
+            f = tar.extractfile(info)
+            data = f.read() if f is not None else b""
+            if key != current:
+                if current is not None:
+                    yield current, members
+                current, members = key, {}
+            members[suffix] = data
+    if current is not None:
+        yield current, members
+
+
+def list_shards(category_dir: Path) -> list[Path]:
+    """Shard files of a category folder, sorted by name."""
+    d = Path(category_dir)
+    if not d.is_dir():
+        return []
+    return sorted(p for p in d.iterdir() if SHARD_RE.match(p.name))
+
+
+# ---------------------------------------------------------------- a category's shard set
+
+@dataclasses.dataclass
+class CategoryShards:
+    shards: dict[str, list[ShardInfo]]  # split -> shards
+    failed: list[dict]  # {"model_id", "stage", "path", "reason"}
+    written: list[str]  # shard names whose bytes changed (or are new)
+    removed: list[str]  # stale shard names deleted
+
+
+def write_category_shards(
+    category: str,
+    models: list[ModelDirs],
+    category_dir: Path,
+    settings: ShardSettings,
+    seed: int,
+    settings_hash: str,
+    portable=lambda p: p,
+    before_cleanup=None,
+) -> CategoryShards:
+    """Build the shard set of one category in a staging folder, then move it into place.
+
+    Unchanged shards (same sha256) are left untouched. ``before_cleanup(result)`` runs after the
+    new shards are in place and before stale ones are deleted: the caller writes the category's
+    manifest fragment there, so the fragment never lists a shard that is missing.
+    """
+    category_dir = Path(category_dir)
+    category_dir.mkdir(parents=True, exist_ok=True)
+    failed: list[dict] = []
+    by_split: dict[str, list[ModelDirs]] = {s: [] for s in SPLITS}
+    for m in sorted(models, key=lambda m: sample_key(category, m.model_id)):
+        by_split[split_of(category, m.model_id, settings.split_fractions)].append(m)
+
+    def samples(ms: list[ModelDirs]) -> Iterator[Sample]:
+        for m in ms:
+            try:
+                yield assemble_sample(category, m, settings, seed, settings_hash, portable)
+            except ModelError as e:
+                failed.append({"model_id": m.model_id, "stage": "shards",
+                               "path": portable(e.path), "reason": e.reason})
+
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=category_dir))
+    try:
+        shards = {s: write_split_shards(samples(by_split[s]), s, staging, settings) for s in SPLITS}
+        written: list[str] = []
+        for infos in shards.values():
+            for info in infos:
+                dst = category_dir / info.name
+                if dst.exists() and dst.stat().st_size == info.bytes and file_sha256(dst) == info.sha256:
+                    continue  # same bytes: keep the old file and its mtime
+                os.replace(staging / info.name, dst)
+                written.append(info.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    keep = {i.name for infos in shards.values() for i in infos}
+    result = CategoryShards(shards, sorted(failed, key=lambda f: f["model_id"]), written, [])
+    if before_cleanup is not None:
+        before_cleanup(result)
+    for p in list_shards(category_dir):
+        if p.name not in keep:
+            p.unlink()
+            result.removed.append(p.name)
+    return result

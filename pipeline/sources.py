@@ -1,0 +1,156 @@
+"""Where source meshes come from: procedural shapes, ShapeNet Core v2, or a plain folder tree.
+
+Directory sources are listed by walking directories (names only, in sorted order) and stopping
+at ``limit``; no mesh is opened here, so a 13k-model ShapeNet tree lists in well under a second.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+from pipeline.config import stage_key
+from pipeline.layout import ModelRef
+from pipeline.mesh_io import MESH_EXTENSIONS
+
+# ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
+# largest gun class, and what the procedural guns imitate); pass "03948459" to read pistols.
+SHAPENET_SYNSETS = {
+    "02691156": "airplane",
+    "02808440": "bathtub",
+    "02876657": "bottle",
+    "02958343": "car",
+    "03467517": "guitar",
+    "04090263": "gun",
+    "03624134": "knife",
+    "03797390": "mug",
+}
+SHAPENET_IDS = {name: synset for synset, name in SHAPENET_SYNSETS.items()}
+# Other synsets readable by id (category name = "pistol"), not part of the default 8.
+EXTRA_SYNSETS = {"03948459": "pistol"}
+SHAPENET_MODEL_FILE = Path("models") / "model_normalized.obj"
+_SYNSET_RE = re.compile(r"^\d{8}$")
+
+# Procedural models materialized per category when no limit is given, and the defect share
+# the source stage uses (part of its settings key).
+DEFAULT_PROCEDURAL_COUNT = 100
+DEFECT_FRACTION = 0.25
+
+
+def _sorted_entries(folder: Path) -> list[os.DirEntry]:
+    """Entries of one directory, sorted by name (only names are read, nothing is opened)."""
+    with os.scandir(folder) as it:
+        return sorted(it, key=lambda e: e.name)
+
+
+def detect_layout(source: str | Path) -> str:
+    """"procedural", "shapenet" (synset-id folders) or "folder" (<root>/<category>/*.ext)."""
+    if str(source) == "procedural":
+        return "procedural"
+    root = Path(source)
+    if not root.is_dir():
+        raise FileNotFoundError(f"source {source!r} is neither 'procedural' nor a directory")
+    names = [e.name for e in _sorted_entries(root) if e.is_dir()]
+    if any(_SYNSET_RE.match(n) for n in names):
+        return "shapenet"
+    return "folder"
+
+
+def list_categories(source: str) -> list[str]:
+    """Category names a source offers, sorted (for ShapeNet: those of the 8 synsets present)."""
+    layout = detect_layout(source)
+    if layout == "procedural":
+        from pipeline.shapes import CATEGORIES
+
+        return sorted(CATEGORIES)
+    root = Path(source)
+    dirs = [e.name for e in _sorted_entries(root) if e.is_dir()]
+    if layout == "shapenet":
+        return sorted(SHAPENET_SYNSETS[d] for d in dirs if d in SHAPENET_SYNSETS)
+    return [d for d in dirs if not d.startswith(".")]
+
+
+def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
+    """ShapeNet Core v2 models of one category (name or synset id), in model-id order."""
+    known = {**SHAPENET_SYNSETS, **EXTRA_SYNSETS}
+    synset = category if category in known else {n: s for s, n in known.items()}.get(category)
+    if synset is None:
+        raise ValueError(f"unknown ShapeNet category {category!r}; known: {sorted(known.values())}")
+    name = known[synset]
+    folder = root / synset
+    if not folder.is_dir():
+        return
+    for entry in _sorted_entries(folder):
+        if entry.is_dir() and not entry.name.startswith("."):
+            # The path is reported even when the file is missing: prepare records that failure.
+            yield ModelRef(name, entry.name, Path(entry.path) / SHAPENET_MODEL_FILE, "shapenet")
+
+
+def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
+    """Mesh files directly in ``<root>/<category>/``, id = file stem (full name if stems clash)."""
+    folder = root / category
+    if not folder.is_dir():
+        return
+    files = [
+        e for e in _sorted_entries(folder)
+        if e.is_file() and not e.name.startswith(".") and Path(e.name).suffix.lower() in MESH_EXTENSIONS
+    ]
+    stems = [Path(e.name).stem for e in files]
+    for entry, stem in zip(files, stems):
+        model_id = stem if stems.count(stem) == 1 else entry.name
+        yield ModelRef(category, model_id, Path(entry.path), "folder")
+
+
+def procedural_source_dir(work_dir: Path, seed: int) -> Path:
+    """Folder of the materialized procedural source models for this seed."""
+    key = stage_key("source", {"seed": seed, "defect_fraction": DEFECT_FRACTION})
+    return Path(work_dir) / key
+
+
+def _write_procedural(model, obj: Path) -> None:
+    """Write OBJ + sidecar into a temp folder, then move the OBJ and, last, the sidecar into place:
+    the sidecar's presence marks a complete model, so a killed run never leaves a half one."""
+    obj.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{obj.stem}.", dir=obj.parent) as tmp:
+        tmp_obj = Path(tmp) / obj.name
+        model.write(tmp_obj)
+        os.replace(tmp_obj, obj)
+        os.replace(tmp_obj.with_suffix(".json"), obj.with_suffix(".json"))
+
+
+def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Iterator[ModelRef]:
+    """Generate (once) and yield procedural models 0..count-1 of a category as OBJ + sidecar."""
+    from pipeline.shapes import CATEGORIES, generate
+
+    if category not in CATEGORIES:
+        raise ValueError(f"unknown procedural category {category!r}; known: {list(CATEGORIES)}")
+    folder = procedural_source_dir(work_dir, seed) / category
+    for index in range(count):
+        model_id = f"{index:05d}"
+        obj = folder / f"{model_id}.obj"
+        if not (obj.is_file() and obj.with_suffix(".json").is_file()):
+            _write_procedural(generate(category, index, seed=seed, defect_fraction=DEFECT_FRACTION), obj)
+        yield ModelRef(category, model_id, obj, "procedural")
+
+
+def iter_models(source: str, category: str, seed: int = 0, work_dir: Path | None = None,
+                count: int | None = None) -> Iterator[ModelRef]:
+    """Stream the models of one category of a source, in deterministic order."""
+    layout = detect_layout(source)
+    if layout == "procedural":
+        if work_dir is None:
+            raise ValueError("the procedural source needs a work_dir to write its meshes to")
+        return iter_procedural(category, DEFAULT_PROCEDURAL_COUNT if count is None else count, seed, work_dir)
+    if layout == "shapenet":
+        return iter_shapenet(Path(source), category)
+    return iter_folder(Path(source), category)
+
+
+def list_models(source: str, category: str, limit: int | None, seed: int, work_dir: Path) -> list[ModelRef]:
+    """The first ``limit`` models (all if None) of a category, sorted and deterministic."""
+    it = iter_models(source, category, seed=seed, work_dir=work_dir, count=limit)
+    return list(it if limit is None else itertools.islice(it, limit))

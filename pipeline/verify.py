@@ -1,0 +1,80 @@
+"""Re-check every shard of a dataset against its manifest.
+
+Checks: the manifest's own checksum; per category the fragment on disk equals the manifest
+entry; every listed shard exists with the recorded size and sha256 and reads back with tarfile
+holding exactly the recorded sample keys, each with every required member and a matching
+meta.json; no unlisted shard files lie in a category folder.
+"""
+
+from __future__ import annotations
+
+import json
+import tarfile
+from pathlib import Path
+
+from pipeline.manifest import FRAGMENT, MANIFEST, content_checksum, read_fragment
+from pipeline.shards import REQUIRED_MEMBERS, file_sha256, iter_shard, list_shards
+from pipeline.splits import SPLITS
+
+
+def _check_sample(shard: str, key: str, members: dict[str, bytes], split: str) -> list[str]:
+    problems = [f"{shard}: sample {key} lacks {m}" for m in REQUIRED_MEMBERS if m not in members]
+    if not any(m.startswith("sketch_") and m.endswith(".png") for m in members):
+        problems.append(f"{shard}: sample {key} has no sketch_<view>_<variant>.png")
+    if "meta.json" in members:
+        try:
+            meta = json.loads(members["meta.json"])
+        except ValueError:
+            return problems + [f"{shard}: sample {key} has unreadable meta.json"]
+        if meta.get("key") != key or meta.get("split") != split:
+            problems.append(f"{shard}: sample {key} meta.json names key {meta.get('key')!r} split {meta.get('split')!r}")
+    return problems
+
+
+def _check_shard(path: Path, info: dict, split: str) -> list[str]:
+    name = f"{path.parent.name}/{path.name}"
+    if not path.exists():
+        return [f"{name}: missing"]
+    if path.stat().st_size != info["bytes"]:
+        return [f"{name}: size {path.stat().st_size} != manifest {info['bytes']}"]
+    if file_sha256(path) != info["sha256"]:
+        return [f"{name}: sha256 differs from manifest"]
+    problems: list[str] = []
+    keys: list[str] = []
+    try:
+        for key, members in iter_shard(path):
+            keys.append(key)
+            problems += _check_sample(name, key, members, split)
+    except (tarfile.TarError, OSError) as e:
+        return [f"{name}: unreadable tar: {e}"]
+    if len(keys) != info["samples"]:
+        problems.append(f"{name}: {len(keys)} samples != manifest {info['samples']}")
+    if "keys" in info and keys != info["keys"]:
+        problems.append(f"{name}: sample keys differ from manifest")
+    return problems
+
+
+def verify_dataset(dataset_dir: Path) -> list[str]:
+    """All mismatches between the dataset folder and its manifest (empty list = valid)."""
+    dataset_dir = Path(dataset_dir)
+    try:
+        manifest = json.loads((dataset_dir / MANIFEST).read_text())
+    except (OSError, ValueError) as e:
+        return [f"{MANIFEST}: cannot read: {e}"]
+    problems: list[str] = []
+    if manifest.get("checksum") != content_checksum(manifest):
+        problems.append(f"{MANIFEST}: checksum does not match its content")
+    for category, entry in sorted(manifest.get("categories", {}).items()):
+        cat_dir = dataset_dir / category
+        frag = read_fragment(cat_dir)
+        if frag != entry:
+            problems.append(f"{category}/{FRAGMENT}: differs from the manifest entry")
+        listed: set[str] = set()
+        for split in SPLITS:
+            for info in entry["splits"][split]["shards"]:
+                listed.add(info["name"])
+                problems += _check_shard(cat_dir / info["name"], info, split)
+        for p in list_shards(cat_dir):
+            if p.name not in listed:
+                problems.append(f"{category}/{p.name}: shard not listed in the manifest")
+    return problems

@@ -1,0 +1,62 @@
+"""Settings of the render stage (hashed into the stage's folder name)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+RIGS = ("random", "front_side_top")
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderSettings:
+    """How each prepared (unit-radius, origin-centred) mesh is drawn.
+
+    rig "random": ``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly
+    from ``elevation_range``; rig "front_side_top": three fixed cameras (``views`` is ignored).
+    """
+
+    views: int = 8
+    image_size: int = 256
+    elevation_range: tuple[float, float] = (-10.0, 40.0)
+    rig: str = "random"
+    orthographic: bool = False
+    lens_mm: float = 50.0          # on a 36 mm sensor: 39.6° field of view
+    sensor_mm: float = 36.0
+    margin: float = 1.08           # the unit sphere fills 1/margin of the half-frame
+    crease_angle_deg: float = 134.43   # Blender's default; dihedral angles below it are creases
+    smooth_shading: bool = True    # smooth silhouettes on curved parts; edges at creases stay sharp
+    line_thickness: float = 1.5    # pixels
+    min_stroke_px: float = 0.0     # drop strokes shorter than this; >0 also opens gaps in noisy outlines
+    samples: int = 1               # Cycles samples; lines are anti-aliased by Freestyle itself
+    threads: int = 1               # Cycles render threads and the size of Blender's TBB pool (0: all CPUs)
+    timeout_s: float = 60.0        # per model; a batch gets startup_timeout_s + n * timeout_s
+    startup_timeout_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if self.rig not in RIGS:
+            raise ValueError(f"rig must be one of {RIGS}, got {self.rig!r}")
+        if self.image_size < 8 or self.views < 1:
+            raise ValueError("image_size must be >= 8 and views >= 1")
+        lo, hi = self.elevation_range
+        if not -90.0 < lo <= hi < 90.0:
+            raise ValueError(f"elevation_range must lie in (-90, 90): {self.elevation_range}")
+
+    @property
+    def half_fov_rad(self) -> float:
+        return math.atan(0.5 * self.sensor_mm / self.lens_mm)
+
+    @property
+    def distance(self) -> float:
+        """Camera distance at which the unit sphere's outline fits the frame with ``margin``."""
+        if self.orthographic:
+            return 3.0  # any distance outside the unit sphere; only the clip range cares
+        return self.margin / math.sin(self.half_fov_rad)
+
+    @property
+    def ortho_scale(self) -> float:
+        """Width of the orthographic frame in world units."""
+        return 2.0 * self.margin
+
+    def batch_timeout_s(self, n_models: int) -> float:
+        return self.startup_timeout_s + self.timeout_s * max(1, n_models)

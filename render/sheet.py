@@ -1,0 +1,136 @@
+"""Contact sheet of rendered views: one row per model, its views side by side.
+
+    python -m render.sheet --stage-dir WORK/render-<key> --out sheets/renders.png
+    python -m render.sheet --work-dir WORK --out sheets/renders.png      # newest render-* folder
+    python -m render.sheet --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
+
+``--procedural`` first makes the inputs itself: procedural models → prepare stage → render stage
+(all under WORK, keyed like the workflow's stage folders), then draws the sheet.
+``--strokes`` overlays the captured Freestyle strokes (colour by edge type) on each view.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from pipeline.atomic import read_json
+from pipeline.layout import read_record
+from pipeline.sheets import contact_sheet, save_png
+from render.settings import RenderSettings
+
+TYPE_COLOURS = {"silhouette": (220, 30, 30), "border": (30, 120, 220), "crease": (20, 160, 60)}
+
+
+def find_stage_dir(work_dir: Path) -> Path:
+    stages = [p for p in Path(work_dir).glob("render-*") if p.is_dir()]
+    if not stages:
+        raise SystemExit(f"no render-* stage folder under {work_dir}")
+    return max(stages, key=lambda p: (p.stat().st_mtime, p.name))
+
+
+def overlay_strokes(gray: np.ndarray, strokes: list[dict]) -> np.ndarray:
+    import cv2
+
+    rgb = np.repeat(gray[..., None], 3, axis=2).copy()
+    for s in strokes:
+        pts = np.round(np.asarray(s["points"], float) * 16).astype(np.int32).reshape(-1, 1, 2)
+        colour = TYPE_COLOURS.get(s["type"], (200, 120, 0))
+        cv2.polylines(rgb, [pts], False, colour, 1, cv2.LINE_AA, shift=4)
+    return rgb
+
+
+def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
+                     strokes: bool = False) -> np.ndarray:
+    """Rows of up to ``max_views`` views for the first ``per_category`` rendered models of each category."""
+    rows: list[list[tuple[np.ndarray, str]]] = []
+    for cat_dir in sorted(p for p in Path(stage_dir).iterdir() if p.is_dir() and not p.name.startswith(".")):
+        shown = 0
+        for model in sorted(p for p in cat_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+            rec = read_record(model)
+            if rec is None or rec.get("status") != "ok" or shown >= per_category:
+                continue
+            views = sorted(model.glob("view_*.png"))[:max_views]
+            stroke_views = read_json(model / "strokes.json")["views"] if strokes else None
+            row = []
+            for i, png in enumerate(views):
+                gray = np.asarray(Image.open(png).convert("L"))
+                row.append((overlay_strokes(gray, stroke_views[i]) if strokes else gray,
+                            f"{cat_dir.name}/{model.name} v{i}"))
+            rows.append(row)
+            shown += 1
+    if not any(rows):
+        raise SystemExit(f"no rendered models under {stage_dir}")
+    # pad rows with blank tiles so each model starts a new row
+    cols = max(len(r) for r in rows)
+    blank = np.full_like(rows[0][0][0], 255)
+    images = [img for r in rows for img, _ in r + [(blank, "")] * (cols - len(r))]
+    labels = [lab for r in rows for _, lab in r + [(blank, "")] * (cols - len(r))]
+    return contact_sheet(images, labels, cols=cols)
+
+
+def render_procedural(work_dir: Path, categories: list[str], per_category: int, seed: int,
+                      settings: RenderSettings) -> Path:
+    """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
+    from pipeline.config import stage_key
+    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.sources import list_models
+    from render.batch import render_batch
+
+    prep_settings = PrepareSettings()
+    prep_key = stage_key("prepare", prep_settings)
+    render_key = stage_key("render", settings, prep_key)
+    for cat in categories:
+        refs = list_models("procedural", cat, per_category, seed, work_dir)
+        prepare_batch(refs, work_dir / prep_key, prep_settings, progress=_print_progress)
+        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / "mesh.ply") for r in refs
+                 if (read_record(work_dir / prep_key / cat / r.model_id) or {}).get("status") == "ok"]
+        render_batch(cat, items, work_dir / render_key, settings, seed, progress=_print_progress)
+    return work_dir / render_key
+
+
+def _print_progress(done: int, total: int, message: str) -> None:
+    print(f"[{done}/{total}] {message}", file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--stage-dir", type=Path, help="a render stage folder (render-<key>)")
+    ap.add_argument("--work-dir", type=Path, help="work folder: newest render-* inside, or output of --procedural")
+    ap.add_argument("--out", type=Path, default=Path("sheets/renders.png"))
+    ap.add_argument("--per-category", type=int, default=3)
+    ap.add_argument("--max-views", type=int, default=8)
+    ap.add_argument("--strokes", action="store_true", help="overlay captured strokes coloured by type")
+    ap.add_argument("--procedural", action="store_true", help="make, prepare and render procedural models first")
+    ap.add_argument("--categories", nargs="*", default=None, help="with --procedural (default: all)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--views", type=int, default=RenderSettings.views)
+    ap.add_argument("--image-size", type=int, default=RenderSettings.image_size)
+    args = ap.parse_args(argv)
+
+    if args.procedural:
+        if args.work_dir is None:
+            ap.error("--procedural needs --work-dir")
+        from pipeline.shapes import CATEGORIES
+
+        cats = args.categories or list(CATEGORIES)
+        settings = RenderSettings(views=args.views, image_size=args.image_size)
+        stage = render_procedural(args.work_dir, cats, args.per_category, args.seed, settings)
+    elif args.stage_dir is not None:
+        stage = args.stage_dir
+    elif args.work_dir is not None:
+        stage = find_stage_dir(args.work_dir)
+    else:
+        ap.error("give --stage-dir, --work-dir or --procedural --work-dir")
+    sheet = sheet_from_stage(stage, args.per_category, args.max_views, args.strokes)
+    save_png(args.out, sheet)
+    print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]}) from {stage}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

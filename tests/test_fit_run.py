@@ -1,0 +1,68 @@
+import csv
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from fixtures_shards import write_fixture_shards  # noqa: E402
+
+from train.evaluate import METRICS, evaluate
+from train.fit import FitSettings, fit, load_checkpoint
+from train.losses.weights import LossWeights
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory):
+    return write_fixture_shards(tmp_path_factory.mktemp("ds"), n_points=800, size=32)
+
+
+def settings(shards, out, steps, **kw):
+    base = dict(dataset=str(shards), category="knife", template="sphere24", out=str(out), steps=steps,
+                batch_size=2, workers=0, n_points=300, image_size=32, max_views=2, log_every=1,
+                checkpoint_every=100, weights=LossWeights(collision=0.0))  # fmt: skip
+    return FitSettings(**{**base, **kw})
+
+
+def test_resume_continues_the_run(shards, tmp_path):
+    torch.set_num_threads(1)
+    out = tmp_path / "run"
+    first = fit(settings(shards, out, 2), progress=False)
+    ck = load_checkpoint(out / "checkpoint.pt")
+    assert ck["step"] == 2
+    second = fit(settings(shards, out, 3), progress=False)
+    assert second["param_digest"] != first["param_digest"]
+    assert load_checkpoint(out / "checkpoint.pt")["step"] == 3
+    assert "exp_avg" in str(load_checkpoint(out / "checkpoint.pt")["optimizer"]["state"][0].keys())
+    rows = list(csv.DictReader(open(out / "log.csv")))
+    assert [int(r["step"]) for r in rows] == [1, 2, 3]
+    assert (out / "loss.png").stat().st_size > 0 and any((out / "tb").iterdir())
+    with pytest.raises(ValueError, match="different settings"):
+        fit(settings(shards, out, 4, lr=1e-3), progress=False)
+
+
+def test_training_is_deterministic(shards, tmp_path):
+    a = fit(settings(shards, tmp_path / "a", 2), progress=False)
+    b = fit(settings(shards, tmp_path / "b", 2), progress=False)
+    assert a["param_digest"] == b["param_digest"]
+
+
+def test_evaluate_reports_every_metric_for_model_and_template(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 1), progress=False)
+    res = evaluate(out / "checkpoint.pt", shards, "test", out=tmp_path / "eval.json")
+    assert res["samples"] == 2
+    for who in ("model", "template"):
+        assert set(METRICS) <= set(res[who]) and all(v == v for v in res[who].values())
+    assert res["template"]["chamfer"] > 0 and res["template"]["chamfer_sq_x1000"] > 0
+    assert (tmp_path / "eval.json").exists()
+
+
+@pytest.mark.slow
+def test_loss_decreases_over_training(shards, tmp_path):
+    out = tmp_path / "long"
+    fit(settings(shards, out, 80, lr=1e-3, log_every=10, batch_size=4), progress=False)
+    rows = list(csv.DictReader(open(out / "log.csv")))
+    first, last = float(rows[0]["chamfer"]), float(rows[-1]["chamfer"])
+    assert last < 0.8 * first

@@ -1,0 +1,71 @@
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+sys.path.insert(0, str(Path(__file__).parent))
+from fixtures_shards import box_sketch, camera  # noqa: E402
+
+from train.export.iges import read_iges
+from train.fit import FitSettings, save_checkpoint
+from train.interpolate import interpolate
+from train.model import SketchToPatches
+from train.predict import predict
+from train.templates import load_template, load_template_file
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """An untrained-but-perturbed network checkpoint (predictions differ per sketch)."""
+    d = tmp_path_factory.mktemp("ck")
+    torch.manual_seed(0)
+    t = load_template("sphere24")
+    model = SketchToPatches(t.initial_params())
+    with torch.no_grad():
+        model.out.weight.normal_(0, 0.02)
+    model.eval()
+    s = FitSettings(dataset="-", category="knife", template="sphere24", out=str(d), image_size=32)
+    save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    sketches = []
+    for i, half in enumerate(([1, 0.3, 0.2], [0.3, 1, 0.3])):
+        h = np.array(half) / np.linalg.norm(half)
+        cv2.imwrite(str(d / f"s{i}.png"), box_sketch(h, camera(30, 20, 32), 32, 1))
+        sketches.append(str(d / f"s{i}.png"))
+    return d / "checkpoint.pt", sketches
+
+
+def test_predict_writes_all_exports(checkpoint, tmp_path):
+    ck, sketches = checkpoint
+    res = predict(ck, sketches[:1], tmp_path)
+    assert res["mesh"]["watertight"]
+    mesh = trimesh.load(tmp_path / "mesh.obj", process=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    patches = np.load(tmp_path / "patches.npy")
+    t = load_template_file(tmp_path / "patches.json")
+    again = t.patches_from_params(t.initial_params(torch.float64)[None])[0].numpy()
+    assert np.abs(again - patches).max() < 1e-5
+    surf = read_iges(tmp_path / "patches.igs")
+    assert len(surf) == 24
+    for p in (tmp_path / "quads.obj", tmp_path / "render.png"):
+        assert p.stat().st_size > 0
+
+
+def test_interpolation_endpoints_equal_the_inputs(checkpoint, tmp_path):
+    ck, (a, b) = checkpoint
+    res = interpolate(ck, [a], [b], tmp_path, steps=3, alpha=4.0)
+    for space in ("patch", "latent"):
+        params = res["params"][space]
+        assert params.shape == (3, 366)
+        assert not np.allclose(params[0], params[-1])
+    from train.predict import load_predictor, load_sketches
+
+    model, _, _ = load_predictor(ck)
+    with torch.no_grad():
+        pa, pb = model(load_sketches([a], 32))[0].numpy(), model(load_sketches([b], 32))[0].numpy()
+    for space in ("patch", "latent"):
+        assert np.allclose(res["params"][space][0], pa, atol=1e-6) and np.allclose(res["params"][space][-1], pb, atol=1e-6)
+    assert sorted(p.name for p in tmp_path.glob("latent_*.obj")) == ["latent_00.obj", "latent_01.obj", "latent_02.obj"]

@@ -1,0 +1,246 @@
+"""The paper's loss terms against independent computations."""
+
+import numpy as np
+import pytest
+import torch
+
+from train.geometry import evaluate_patches, grid_params, patch_from_corners, sample_surface_uniform, uniform_params
+from train.losses import (
+    LossWeights,
+    chamfer_loss,
+    collision_loss,
+    collision_pairs,
+    flatness_loss,
+    match_points,
+    normal_alignment_loss,
+    point_triangle_sqdist,
+    symmetry_loss,
+    template_normal_loss,
+    total_loss,
+    unconnected_pairs,
+)
+from train.nn_search import nearest_distances
+from train.templates import sphere24, sphere54
+
+torch.set_num_threads(1)
+
+
+def sphere_patches(t, dtype=torch.float64):
+    return t.patches_from_params(t.initial_params(dtype)[None])
+
+
+def test_nearest_distances_equal_dense_cdist_values_and_gradients():
+    gen = torch.Generator().manual_seed(0)
+    q = torch.randn(2, 300, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+    r = torch.randn(2, 200, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+    d, _ = nearest_distances(q, r)
+    dense = torch.cdist(q, r).min(-1).values
+    torch.testing.assert_close(d, dense)
+    g1 = torch.autograd.grad(d.sum(), (q, r))
+    g2 = torch.autograd.grad(dense.sum(), (q, r))
+    for a, b in zip(g1, g2):
+        torch.testing.assert_close(a, b)
+
+
+def test_chamfer_is_near_zero_on_itself_and_grows_with_offset():
+    t = sphere54()
+    p = sphere_patches(t)
+    target, normals = sample_surface_uniform(p, 20000, torch.Generator().manual_seed(1))
+    st = uniform_params(t.num_patches, 400, torch.Generator().manual_seed(2), dtype=torch.float64)
+    ev = evaluate_patches(p, st)
+    base = chamfer_loss(ev.points, ev.jacobian, target)
+    assert base.item() < 0.03  # the sampling floor: ~half the sample spacing each way
+    for delta in (0.1, 0.2):
+        shifted = target + delta * normals  # the surface moved outward by delta
+        value = chamfer_loss(ev.points, ev.jacobian, shifted)
+        assert abs(value.item() - 2 * delta) < 0.02  # ≈ delta each way
+
+
+def test_chamfer_weights_patch_side_by_jacobian():
+    # one large and one small flat patch, target far away: patch side = area-weighted mean height
+    corners = torch.tensor(
+        [[[0, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1]], [[5, 0, 3], [6, 0, 3], [6, 1, 3], [5, 1, 3]]], dtype=torch.float64
+    )
+    p = patch_from_corners(corners)[None]
+    ev = evaluate_patches(p, grid_params(5, dtype=torch.float64))
+    target = torch.tensor([[[1.0, 1.0, 0.0], [5.5, 0.5, 0.0]]], dtype=torch.float64)
+    m = match_points(ev.points, target)
+    patch_side = (chamfer_loss(ev.points, ev.jacobian, target, matches=m) - 0).item()
+    d = torch.cdist(ev.points.reshape(1, -1, 3), target).min(-1).values.reshape(2, -1)
+    expected = (4 * d[0].mean() + 1 * d[1].mean()) / 5 + torch.cdist(target, ev.points.reshape(1, -1, 3)).min(-1).values.mean()
+    assert patch_side == pytest.approx(expected.item(), rel=1e-9)
+
+
+def test_chamfer_gradcheck_float64():
+    corners = torch.tensor([[[0, 0, 0], [1, 0, 0.2], [1, 1, 0], [0, 1, 0.1]]], dtype=torch.float64)
+    p = patch_from_corners(corners)[None].clone().requires_grad_(True)
+    target = torch.rand(1, 30, 3, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    st = torch.rand(10, 2, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+
+    def f(x):
+        ev = evaluate_patches(x, st)
+        return chamfer_loss(ev.points, ev.jacobian, target)
+
+    assert torch.autograd.gradcheck(f, (p,))
+
+
+def test_normal_alignment_zero_for_matching_and_eight_for_flipped():
+    t = sphere24()
+    p = sphere_patches(t)
+    ev = evaluate_patches(p, grid_params(6, include_boundary=False, dtype=torch.float64))
+    target = ev.points.reshape(1, -1, 3)
+    m = match_points(ev.points, target)
+    same = normal_alignment_loss(ev.normals, ev.jacobian, ev.normals.reshape(1, -1, 3), m)
+    flipped = normal_alignment_loss(ev.normals, ev.jacobian, -ev.normals.reshape(1, -1, 3), m)
+    assert same.item() < 1e-12
+    assert flipped.item() == pytest.approx(8.0)
+
+
+def test_flatness_zero_for_planar_affine_patch_and_positive_for_sphere():
+    flat = patch_from_corners(torch.tensor([[0, 0, 0], [2, 0, 1], [2, 1, 1], [0, 1, 0]], dtype=torch.float64))[None, None]
+    st = grid_params(6, dtype=torch.float64)
+    ev = evaluate_patches(flat, st)
+    assert flatness_loss(ev.points, st, ev.jacobian).item() < 1e-20
+    twisted = patch_from_corners(torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 1], [0, 1, 0]], dtype=torch.float64))[None, None]
+    ev = evaluate_patches(twisted, st)
+    # residual of a bilinear z = s·t after the best affine fit, independently with numpy lstsq
+    s, t_ = st[:, 0].numpy(), st[:, 1].numpy()
+    X = np.stack([s, t_, np.ones_like(s)], 1)
+    P = ev.points[0, 0].numpy()
+    res = ((X @ np.linalg.lstsq(X, P, rcond=None)[0] - P) ** 2).sum(1)
+    w = ev.jacobian[0, 0].numpy()
+    assert flatness_loss(ev.points, st, ev.jacobian).item() == pytest.approx((res * w).sum() / w.sum(), rel=1e-9)
+    sp = sphere_patches(sphere24())
+    ev = evaluate_patches(sp, st)
+    assert flatness_loss(ev.points, st, ev.jacobian).item() > 1e-5
+
+
+def test_template_normal_and_symmetry_terms():
+    t = sphere24()
+    prm = t.initial_params(torch.float64)[None]
+    st = grid_params(4, dtype=torch.float64)
+    ev = evaluate_patches(t.patches_from_params(prm), st)
+    assert template_normal_loss(ev.normals, ev.normals[0], ev.jacobian).item() < 1e-20
+    assert template_normal_loss(-ev.normals, ev.normals[0], ev.jacobian).item() == pytest.approx(4.0)
+    pairs = t.symmetry_pairs()
+    assert symmetry_loss(t.points_from_params(prm), pairs).item() < 1e-20
+    moved = prm.clone()
+    i = t.symmetry.pairs[0][0]
+    moved[0, t._offsets[i] + 1] += 0.1  # move one paired point up by 0.1
+    expected = 0.01 / len(pairs)
+    assert symmetry_loss(t.points_from_params(moved), pairs).item() == pytest.approx(expected)
+    # a shifted plane sees the sphere as asymmetric
+    assert symmetry_loss(t.points_from_params(prm), pairs, plane_x=0.5).item() > 0.1
+
+
+def test_point_triangle_distance_regions_and_gradcheck():
+    a, b, c = (torch.tensor(x, dtype=torch.float64) for x in ([0, 0, 0], [1, 0, 0], [0, 1, 0]))
+    pts = torch.tensor([[0.2, 0.2, 0.5], [2, 0, 0], [0.5, -1, 0], [-1, -1, 0], [0.5, 0.5, 0]], dtype=torch.float64)
+    expected = torch.tensor([0.25, 1.0, 1.0, 2.0, 0.0], dtype=torch.float64)
+    torch.testing.assert_close(point_triangle_sqdist(pts, a, b, c), expected)
+    x = torch.tensor([[0.2, 0.3, 0.4], [1.5, 0.4, -0.3]], dtype=torch.float64, requires_grad=True)
+    tri = torch.tensor([[0.1, 0.0, 0.0], [1.0, 0.1, 0.0], [0.0, 1.0, 0.2]], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda p, t: point_triangle_sqdist(p, t[0], t[1], t[2]), (x, tri))
+
+
+def test_collision_zero_for_template_and_large_for_crossing_patches():
+    t = sphere24()
+    pairs = collision_pairs(t, grid=8)
+    assert collision_loss(sphere_patches(t), pairs).item() == 0.0
+    horizontal = torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=torch.float64)
+    vertical = torch.tensor([[0.5, 0, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [0.5, 0, 0.5]], dtype=torch.float64)
+    apart = vertical + torch.tensor([3.0, 0, 0], dtype=torch.float64)
+    crossing = patch_from_corners(torch.stack([horizontal, vertical]))[None].requires_grad_(True)
+    separate = patch_from_corners(torch.stack([horizontal, apart]))[None]
+    loose = unconnected_pairs(2, grid=9)  # odd grid: the vertical patch has a vertex row at z = 0
+    hit = collision_loss(crossing, loose)
+    assert hit.item() == pytest.approx(2.0)  # both ordered pairs (i, j), (j, i) at distance 0
+    assert collision_loss(separate, loose).item() == 0.0
+    hit.sum().backward()
+    assert torch.isfinite(crossing.grad).all()
+
+
+def test_total_loss_reaches_every_parameter_and_ablation_switches_terms_off():
+    t = sphere24()
+    prm = t.initial_params(torch.float64)[None].repeat(2, 1)
+    prm = (prm + 0.01 * torch.randn(prm.shape, generator=torch.Generator().manual_seed(5), dtype=torch.float64)).requires_grad_(True)
+    target, normals = sample_surface_uniform(sphere_patches(t) * 1.1, 3000, torch.Generator().manual_seed(6))
+    target, normals = target.repeat(2, 1, 1), normals.repeat(2, 1, 1)
+    st = uniform_params(t.num_patches, 64, torch.Generator().manual_seed(7), dtype=torch.float64)
+    template_normals = evaluate_patches(sphere_patches(t), st).normals[0]
+    kwargs = dict(
+        template_normals=template_normals,
+        control_points=t.points_from_params(prm),
+        symmetry_pairs=t.symmetry_pairs(),
+        collision=collision_pairs(t),
+    )
+    loss, terms = total_loss(t.patches_from_params(prm), st, target, normals, LossWeights(), **kwargs)
+    assert set(terms) == {"chamfer", "normal", "flat", "collision", "template_normal", "symmetry"}
+    assert all(terms[k].item() > 0 for k in ("chamfer", "normal", "flat", "template_normal", "symmetry"))
+    weights = LossWeights()
+    expected = sum(getattr(weights, k) * v for k, v in terms.items())
+    assert loss.item() == pytest.approx(expected.item())
+    (grad,) = torch.autograd.grad(loss, prm)
+    assert (grad.abs() > 0).all()  # every control point of every patch gets a gradient
+    no_flat, terms2 = total_loss(
+        t.patches_from_params(prm), st, target, normals, LossWeights(flat=0.0, symmetry=0.0), **kwargs
+    )
+    assert terms2["flat"].item() == 0.0 and terms2["symmetry"].item() == 0.0
+    assert no_flat.item() == pytest.approx(loss.item() - 2.0 * terms["flat"].item() - terms["symmetry"].item())
+
+
+def test_patch_mask_removes_absent_parts():
+    t = sphere24()
+    p = sphere_patches(t)
+    st = grid_params(5, include_boundary=False, dtype=torch.float64)
+    ev = evaluate_patches(p, st)
+    keep = torch.zeros(1, t.num_patches, dtype=torch.bool)
+    keep[0, :12] = True
+    target = ev.points[:, :12].reshape(1, -1, 3)  # target = only the kept half
+    _, with_mask = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3), patch_mask=keep)
+    _, without = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3))
+    assert with_mask["chamfer"].item() < 1e-9 < without["chamfer"].item()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_nearest_search_on_cuda_matches_cpu():
+    gen = torch.Generator().manual_seed(9)
+    q = torch.randn(2, 5000, 3, generator=gen)
+    r = torch.randn(2, 4000, 3, generator=gen)
+    d_cpu, _ = nearest_distances(q, r)
+    d_gpu, _ = nearest_distances(q.cuda(), r.cuda())
+    torch.testing.assert_close(d_gpu.cpu(), d_cpu, atol=1e-5, rtol=1e-5)
+
+
+def test_regularizer_gradcheck_float64():
+    gen = torch.Generator().manual_seed(11)
+    corners = torch.tensor([[[0, 0, 0], [1, 0, 0.3], [1, 1, 0], [0, 1, 0.2]]], dtype=torch.float64)
+    p = (patch_from_corners(corners)[None] + 0.05 * torch.randn(1, 1, 4, 4, 3, generator=gen, dtype=torch.float64))
+    for k in range(4):  # keep the loop of curves closed
+        p[:, :, (k + 1) % 4, 0] = p[:, :, k, 3]
+    p.requires_grad_(True)
+    st = torch.rand(8, 2, generator=gen, dtype=torch.float64)
+    tn = torch.nn.functional.normalize(torch.randn(1, 8, 3, generator=gen, dtype=torch.float64), dim=-1)
+    target = torch.rand(1, 12, 3, generator=gen, dtype=torch.float64)
+    target_n = torch.nn.functional.normalize(torch.randn(1, 12, 3, generator=gen, dtype=torch.float64), dim=-1)
+
+    def f(x):
+        ev = evaluate_patches(x, st)
+        m = match_points(ev.points, target)
+        return torch.stack([
+            flatness_loss(ev.points, st, ev.jacobian),
+            template_normal_loss(ev.normals, tn, ev.jacobian),
+            normal_alignment_loss(ev.normals, ev.jacobian, target_n, m),
+            symmetry_loss(x.reshape(1, -1, 3), torch.tensor([[0, 5], [3, 3]]), plane_x=0.1),
+        ])
+
+    assert torch.autograd.gradcheck(f, (p,))
+
+
+def test_collision_skips_absent_patches():
+    horizontal = torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=torch.float64)
+    vertical = torch.tensor([[0.5, 0, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [0.5, 0, 0.5]], dtype=torch.float64)
+    crossing = patch_from_corners(torch.stack([horizontal, vertical]))[None].repeat(2, 1, 1, 1, 1)
+    mask = torch.tensor([[True, True], [True, False]])
+    out = collision_loss(crossing, unconnected_pairs(2, grid=9), patch_mask=mask)
+    assert out.tolist() == [2.0, 0.0]

@@ -1,0 +1,73 @@
+"""Camera rig maths (pure numpy, no Blender)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from render.cameras import blender_matrix_world, project, rig
+from render.settings import RenderSettings
+
+
+def test_rig_is_seeded_per_model():
+    s = RenderSettings()
+    a = rig(s, 0, "car", "00001")
+    assert len(a) == 8
+    again = rig(s, 0, "car", "00001")
+    assert [v.azimuth_deg for v in a] == [v.azimuth_deg for v in again]
+    assert [v.azimuth_deg for v in rig(s, 1, "car", "00001")] != [v.azimuth_deg for v in a]
+    assert [v.azimuth_deg for v in rig(s, 0, "car", "00002")] != [v.azimuth_deg for v in a]
+    el = np.array([v.elevation_deg for v in rig(RenderSettings(views=200), 0, "car", "x")])
+    assert el.min() >= -10 and el.max() <= 40 and el.max() - el.min() > 40
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+def test_unit_sphere_fits_frame(ortho):
+    s = RenderSettings(orthographic=ortho, views=20)
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(5000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    for v in rig(s, 3, "mug", "a"):
+        uv = project(v.projection, pts)
+        assert uv.min() > 0 and uv.max() < s.image_size
+        # the outline nearly fills the frame (margin 1.08)
+        assert uv.max() - uv.min() > 0.85 * s.image_size
+
+
+def test_projection_matches_camera_frame():
+    s = RenderSettings(views=3)
+    for v in rig(s, 0, "gun", "b"):
+        R, t = v.world_to_camera[:3, :3], v.world_to_camera[:3, 3]
+        assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+        # the origin projects to the image centre, world up projects upward (v decreases)
+        c = project(v.projection, np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0]]))
+        assert np.allclose(c[0], [128, 128])
+        assert c[1, 1] < c[0, 1]
+        assert np.isclose(np.linalg.norm(v.eye), v.distance)
+        M = blender_matrix_world(v)
+        # Blender camera looks along its local -Z: toward the origin
+        assert np.allclose(-M[:3, 2], -v.eye / np.linalg.norm(v.eye))
+
+
+def test_front_side_top_rig():
+    s = RenderSettings(rig="front_side_top", orthographic=True)
+    front, side, top = rig(s, 0, "car", "c")
+    # front view: camera on -z; a point at +x appears on the image's left (model faces viewer)
+    assert front.eye[2] < 0
+    uv = project(front.projection, np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]))
+    assert uv[0, 0] < uv[1, 0]
+    assert side.eye[0] > 0
+    assert top.eye[1] > 0
+    # top view: the model's front (-z) is at the bottom of the image
+    uv = project(top.projection, np.array([[0.0, 0.0, -0.5], [0.0, 0.0, 0.0]]))
+    assert uv[0, 1] > uv[1, 1]
+    # orthographic: depth does not change the projection
+    a = project(front.projection, np.array([[0.2, 0.1, -0.5], [0.2, 0.1, 0.5]]))
+    assert np.allclose(a[0], a[1])
+
+
+def test_bad_settings_rejected():
+    with pytest.raises(ValueError):
+        RenderSettings(rig="spiral")
+    with pytest.raises(ValueError):
+        RenderSettings(elevation_range=(10.0, -10.0))

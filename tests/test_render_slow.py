@@ -1,0 +1,73 @@
+"""Slow render tests: procedural models of every category, prepared, rendered at defaults."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+from scipy import ndimage
+
+from pipeline.atomic import read_json
+from render.batch import render_batch
+from render.cameras import project
+from render.settings import RenderSettings
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory):
+    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.shapes import CATEGORIES
+    from pipeline.sources import list_models
+
+    work = tmp_path_factory.mktemp("work")
+    out = {}
+    for cat in CATEGORIES:
+        refs = list_models("procedural", cat, 1, 0, work)
+        recs = prepare_batch(refs, work / "prepare", PrepareSettings())
+        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / "mesh.ply")
+                    for r, rec in zip(refs, recs) if rec["status"] == "ok"]
+    return work, out
+
+
+def check_model(folder: Path, mesh_path: Path, n_views: int, size: int) -> None:
+    mesh = trimesh.load(mesh_path, force="mesh", process=False)
+    cams = read_json(folder / "cameras.json")
+    strokes = read_json(folder / "strokes.json")["views"]
+    assert len(cams["views"]) == len(strokes) == n_views
+    for i, view in enumerate(cams["views"]):
+        a = np.asarray(Image.open(folder / f"view_{i:02d}.png"))
+        assert a.shape == (size, size) and a.dtype == np.uint8
+        ys, xs = np.nonzero(a < 250)
+        uv = project(np.array(view["projection"]), mesh.vertices)
+        ink_box = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+        assert np.abs(ink_box - np.r_[uv.min(0), uv.max(0)]).max() <= 2.0
+        assert {s["type"] for s in strokes[i]} & {"silhouette", "border"}
+        pts = np.concatenate([np.asarray(s["points"]) for s in strokes[i]])
+        dist = ndimage.distance_transform_edt(a >= 200)
+        px = np.clip(np.floor(pts).astype(int), 0, size - 1)
+        assert (dist[px[:, 1], px[:, 0]] <= 1.5).mean() >= 0.95
+
+
+def test_every_category_at_defaults(prepared, tmp_path):
+    work, items = prepared
+    s = RenderSettings()
+    for cat, cat_items in items.items():
+        assert cat_items, f"prepare gave no {cat} model"
+        recs = render_batch(cat, cat_items, tmp_path, s, seed=0)
+        for (mid, mesh), rec in zip(cat_items, recs):
+            assert rec["status"] == "ok", rec
+            check_model(tmp_path / cat / mid, mesh, 8, 256)
+
+
+def test_orthographic_front_side_top(prepared, tmp_path):
+    work, items = prepared
+    s = RenderSettings(rig="front_side_top", orthographic=True)
+    cat_items = items["car"]
+    recs = render_batch("car", cat_items, tmp_path, s, seed=0)
+    assert recs[0]["status"] == "ok"
+    check_model(tmp_path / "car" / cat_items[0][0], cat_items[0][1], 3, 256)

@@ -1,0 +1,130 @@
+"""Procedural shapes: every category builds closed, symmetric, deterministic, bounded parts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from pipeline.shapes import CATEGORIES, generate
+
+N_PER = 3
+
+
+def clean(category: str, index: int):
+    return generate(category, index, seed=0, defect_fraction=0.0)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_category_generates_plausible_model(category):
+    m = clean(category, 0)
+    assert m.category == category and m.model_id == "00000" and m.defects == []
+    assert len(m.parts) >= 2
+    v, f = m.merged()
+    assert 1500 <= len(f) <= 20000
+    extent = v.max(axis=0) - v.min(axis=0)
+    assert 0.8 <= extent.max() <= 2.2
+    assert [c.label for c in m.cuboids] == [p.label for p in m.parts]
+    assert len({p.label for p in m.parts}) == len(m.parts)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_parts_closed_and_outward(category):
+    for i in range(N_PER):
+        for p in clean(category, i).parts:
+            mesh = trimesh.Trimesh(p.vertices, p.faces, process=True)
+            assert mesh.is_watertight, (category, i, p.label)
+            assert mesh.is_winding_consistent, (category, i, p.label)
+            assert mesh.volume > 0, (category, i, p.label)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_symmetric_across_x0(category):
+    for i in range(N_PER):
+        v, _ = clean(category, i).merged()
+        mirrored = v * np.array([-1.0, 1.0, 1.0])
+        dist, _ = cKDTree(v).query(mirrored)
+        assert dist.max() < 1e-6, (category, i, dist.max())
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_cuboids_bound_parts(category):
+    m = generate(category, 1, seed=3, defect_fraction=1.0)
+    for part, box in zip(m.parts, m.cuboids):
+        used = part.vertices[np.unique(part.faces)]
+        assert np.all(used >= box.lo - 1e-12) and np.all(used <= box.hi + 1e-12)
+        assert np.allclose(used.min(0), box.lo) and np.allclose(used.max(0), box.hi)
+
+
+def test_deterministic_and_varied():
+    for category in CATEGORIES:
+        a, b = generate(category, 4, seed=7), generate(category, 4, seed=7)
+        assert a.defects == b.defects
+        assert len(a.parts) == len(b.parts)
+        for pa, pb in zip(a.parts, b.parts):
+            assert pa.label == pb.label
+            assert np.array_equal(pa.vertices, pb.vertices) and np.array_equal(pa.faces, pb.faces)
+        va, _ = clean(category, 4).merged()
+        vc, _ = clean(category, 5).merged()
+        assert va.shape != vc.shape or not np.allclose(va, vc)
+        vs, _ = generate(category, 4, seed=8, defect_fraction=0.0).merged()
+        assert va.shape != vs.shape or not np.allclose(va, vs)
+
+
+def test_optional_parts_vary():
+    labels = {c: set() for c in ("airplane", "car", "bottle", "gun", "knife")}
+    for c in labels:
+        for i in range(12):
+            labels[c].add(frozenset(p.label for p in clean(c, i).parts))
+        assert len(labels[c]) >= 2, c  # optional parts come and go
+
+
+def test_defect_fraction_respected_and_listed():
+    n = 80
+    damaged = [generate(CATEGORIES[i % 8], i, seed=1, defect_fraction=0.25) for i in range(n)]
+    share = sum(bool(m.defects) for m in damaged) / n
+    assert 0.1 <= share <= 0.45
+    kinds = {d.split(":")[0] for m in damaged for d in m.defects}
+    assert kinds == {"holes", "flipped_faces", "duplicate_faces", "internal_faces"}
+    assert all(not generate(CATEGORIES[i % 8], i, seed=1, defect_fraction=0.0).defects for i in range(16))
+
+
+def test_defects_really_damage_the_mesh():
+    found = set()
+    for i in range(60):
+        m = generate("mug", i, seed=2, defect_fraction=1.0)
+        clean_m = generate("mug", i, seed=2, defect_fraction=0.0)
+        for d in m.defects:
+            kind, label = d.split(":")
+            part = next(p for p in m.parts if p.label == label)
+            ref = next(p for p in clean_m.parts if p.label == label)
+            mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+            if sum(x.endswith(":" + label) for x in m.defects) > 1:
+                continue  # two defects on one part: effects mix
+            if kind == "holes":
+                assert len(part.faces) < len(ref.faces)
+            elif kind == "duplicate_faces":
+                assert len(np.unique(np.sort(part.faces, axis=1), axis=0)) < len(part.faces)
+            elif kind == "internal_faces":
+                assert len(part.vertices) == len(ref.vertices) + 4
+            elif kind == "flipped_faces" and len(m.defects) == 1:
+                assert not mesh.is_winding_consistent
+            found.add(kind)
+    assert found == {"holes", "flipped_faces", "duplicate_faces", "internal_faces"}
+
+
+def test_clean_shape_unchanged_by_defect_fraction():
+    a = generate("car", 2, seed=0, defect_fraction=0.0)
+    b = generate("car", 2, seed=0, defect_fraction=0.5)
+    if not b.defects:
+        b = generate("car", 2, seed=0, defect_fraction=1.0)
+    damaged = {d.split(":")[1] for d in b.defects}
+    for pa, pb in zip(a.parts, b.parts):
+        if pa.label not in damaged:
+            assert np.array_equal(pa.vertices, pb.vertices)
+
+
+def test_unknown_category():
+    with pytest.raises(ValueError):
+        generate("teapot", 0)

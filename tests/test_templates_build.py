@@ -1,0 +1,162 @@
+"""Template construction from cuboids: lattice quad mesh, merging, built category templates, median."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from train.templates.build import DATA_DIR
+from train.templates.checks import closed_manifold_problems, euler_characteristic, junction_errors, self_intersections
+from train.templates.format import JunctionPoint, load_template_file
+from train.templates.from_cuboids import TemplateSettings, template_from_boxes
+from train.templates.lattice import Box, boundary_quads, build_lattice, edge_use_counts, euler_characteristic as quad_euler
+from train.templates.median import chamfer_matrix, median_index
+from train.templates.merge import merge_quads, rects_from_quads
+from train.templates.part_boxes import hollow_cup, handle_loop
+
+CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
+
+
+def B(label, lo, hi):
+    return Box(label, np.array(lo, float), np.array(hi, float))
+
+
+def mug_boxes():
+    cup = B("cup", [-0.5, -0.5, -0.5], [0.5, 0.5, 0.5])
+    return hollow_cup(cup) + handle_loop(B("handle", [-0.05, -0.3, 0.4], [0.05, 0.3, 0.8]), cup)
+
+
+def quad_mesh_is_manifold(quads):
+    counts = edge_use_counts(quads)
+    directed = {(int(q[k]), int(q[(k + 1) % 4])) for q in quads for k in range(4)}
+    opposite = all((b, a) in directed for a, b in directed)
+    return set(counts.values()) == {2} and opposite
+
+
+def test_overlapping_cuboids_give_closed_manifold_without_interior_faces():
+    boxes = [B("a", [0, 0, 0], [2, 1, 1]), B("b", [1, 0.5, 0.5], [3, 2, 2])]
+    mesh = boundary_quads(build_lattice(boxes, 1e-3))
+    assert quad_mesh_is_manifold(mesh.quads)
+    assert quad_euler(mesh.quads) == 2
+    pos = mesh.positions()[mesh.quads].mean(axis=1)  # quad centres
+    inside_a = np.all((pos > [0, 0, 0]) & (pos < [2, 1, 1]), axis=1)
+    inside_b = np.all((pos > [1, 0.5, 0.5]) & (pos < [3, 2, 2]), axis=1)
+    assert not np.any(inside_a | inside_b)  # no face strictly inside the union
+    # total area = union surface area: 2*(2+2+1) + 2*(4+4+2.25) - 2*(1*0.5 overlap faces...)
+    areas = sum(_quad_area(mesh.positions()[q]) for q in mesh.quads)
+    assert areas == pytest.approx(_union_area_by_voxels(boxes), rel=1e-9)
+
+
+def _quad_area(p):
+    return float(np.linalg.norm(np.cross(p[1] - p[0], p[3] - p[0])))
+
+
+def _union_area_by_voxels(boxes):
+    lat = build_lattice(boxes, 1e-3)
+    return sum(_quad_area(q) for q in boundary_quads(lat).positions()[boundary_quads(lat).quads])
+
+
+@pytest.mark.parametrize(
+    "boxes",
+    [
+        [B("a", [0, 0, 0], [1, 1, 1]), B("b", [1, 1, 0], [2, 2, 1])],  # touching along an edge
+        [B("a", [0, 0, 0], [1, 1, 1]), B("b", [1, 1, 1], [2, 2, 2])],  # touching at a corner
+    ],
+)
+def test_nonmanifold_contacts_are_repaired(boxes):
+    lat = build_lattice(boxes, 1e-3)
+    assert lat.filled >= 1
+    assert quad_mesh_is_manifold(boundary_quads(lat).quads)
+
+
+def test_mug_union_has_genus_one():
+    mesh = boundary_quads(build_lattice(mug_boxes(), 1e-3, symmetric_x=True))
+    assert quad_mesh_is_manifold(mesh.quads)
+    assert quad_euler(mesh.quads) == 0  # handle hole: genus 1
+
+
+def test_merging_reduces_faces_and_keeps_the_surface():
+    mesh = boundary_quads(build_lattice(mug_boxes(), 1e-3, symmetric_x=True))
+    ps = merge_quads(mesh, mirror=True)
+    before = rects_from_quads(mesh)
+    assert len(ps.rects) < len(before) / 2
+    assert ps.valid()
+    assert sum(ps.area(r) for r in ps.rects.values()) == pytest.approx(sum(ps.area(r) for r in before), rel=1e-12)
+    # same point set: every original quad lies inside exactly one merged rectangle
+    for q in before:
+        hosts = [
+            r for r in ps.rects.values()
+            if (r.axis, r.sign, r.k, r.label) == (q.axis, q.sign, q.k, q.label)
+            and r.b0 <= q.b0 and q.b1 <= r.b1 and r.c0 <= q.c0 and q.c1 <= r.c1
+        ]
+        assert len(hosts) == 1
+
+
+def test_template_from_cuboids_is_closed_with_junctions_on_parents():
+    tpl = template_from_boxes(mug_boxes(), "mug", TemplateSettings(snap_tol=1e-3))
+    assert closed_manifold_problems(tpl) == []
+    assert euler_characteristic(tpl) == 0
+    assert any(isinstance(p, JunctionPoint) for p in tpl.points)
+    assert junction_errors(tpl).max() < 1e-9
+    assert self_intersections(tpl) == []
+    # symmetric construction: every point has a mirror partner or lies on x = 0
+    sym = tpl.symmetry
+    assert 2 * len(sym.pairs) + len(sym.self_points) == tpl.num_points
+
+
+def test_self_intersection_check_detects_crossing_patches():
+    boxes = [B("a", [-1.5, -0.5, -0.5], [-0.5, 0.5, 0.5]), B("b", [0.5, -0.3, -0.3], [1.1, 0.3, 0.3])]
+    tpl = template_from_boxes(boxes, "two", TemplateSettings(snap_tol=1e-3, symmetric=False))
+    assert self_intersections(tpl) == []
+    from train.templates.checks import point_positions
+    from train.templates.format import FreePoint, Template
+
+    pos = point_positions(tpl)
+    pos[pos[:, 0] > 0, 0] -= 1.2  # slide box b into box a: their patches now cross
+    moved = Template(points=[FreePoint(tuple(map(float, q))) for q in pos], curves=tpl.curves, patches=tpl.patches)
+    hits = self_intersections(moved)
+    assert hits and all(tpl.patches[i].label != tpl.patches[j].label for i, j in hits)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_built_category_template_is_valid(category):
+    path = DATA_DIR / f"{category}.json"
+    tpl = load_template_file(path)
+    assert tpl.num_patches >= 6
+    assert closed_manifold_problems(tpl) == []
+    errs = junction_errors(tpl)
+    assert errs.size == 0 or errs.max() < 1e-9
+    assert self_intersections(tpl) == []
+    chi = euler_characteristic(tpl)
+    assert chi % 2 == 0 and chi <= 2 * 8  # closed orientable surfaces
+    if category == "mug":
+        assert chi == 0  # the handle's hole
+    assert tpl.symmetry is not None and 2 * len(tpl.symmetry.pairs) + len(tpl.symmetry.self_points) == tpl.num_points
+    assert (DATA_DIR / f"{category}.png").exists()
+
+
+def test_airplane_template_marks_engine_patches_optional():
+    tpl = load_template_file(DATA_DIR / "airplane.json")
+    engines = tpl.optional_parts.get("engine", [])
+    assert engines and all(tpl.patches[i].label == "engine" for i in engines)
+
+
+def test_median_picks_the_central_model():
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(300, 3))
+    clouds = [base + s for s in ([0, 0, 0], [0.2, 0, 0], [0.4, 0, 0], [0.6, 0, 0], [0.8, 0, 0])]
+    d = chamfer_matrix(clouds)
+    assert np.allclose(d, d.T) and np.all(np.diag(d) == 0)
+    assert median_index(d) == 2
+    assert median_index(np.array([[0, 1.0], [1.0, 0]])) == 0  # ties → lowest index
+
+
+@pytest.mark.slow
+def test_build_is_deterministic(tmp_path):
+    from train.templates.build import BuildSettings, build_all
+
+    a = build_all(["knife"], tmp_path / "a", BuildSettings(n_models=4), spheres=False)
+    build_all(["knife"], tmp_path / "b", BuildSettings(n_models=4), spheres=False)
+    assert (tmp_path / "a/knife.json").read_bytes() == (tmp_path / "b/knife.json").read_bytes()
+    assert (tmp_path / "a/knife.png").read_bytes() == (tmp_path / "b/knife.png").read_bytes()
+    assert a["knife"].chosen in a["knife"].model_ids

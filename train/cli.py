@@ -1,0 +1,117 @@
+"""Command line: ``python -m train {fit,evaluate,predict,interpolate} ...`` (see docs/train.md)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+
+from train.losses.weights import LossWeights
+
+_ABLATE = ("normal", "flat", "collision", "template_normal", "symmetry")
+
+
+def _fit_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dataset", required=True, help="dataset folder holding <category>/<split>-NNNNN.tar")
+    p.add_argument("--category", required=True)
+    p.add_argument("--template", required=True, help="sphere24, sphere54, a category name, or a template file")
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--out", required=True, help="run folder (re-using it resumes the run)")
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2, help="data loader worker processes per rank")
+    p.add_argument("--max-views", type=int, default=4)
+    p.add_argument("--points", type=int, default=7000, help="target / patch sample points per shape")
+    p.add_argument("--image-size", type=int, default=128)
+    p.add_argument("--checkpoint-every", type=int, default=500)
+    p.add_argument("--log-every", type=int, default=10)
+    p.add_argument("--device", default=None, help="default: cuda when present, else cpu")
+    for f in dataclasses.fields(LossWeights):
+        p.add_argument(f"--w-{f.name.replace('_', '-')}", type=float, default=f.default, help=f"loss weight (paper: {f.default})")
+    for name in _ABLATE:
+        p.add_argument(f"--no-{name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {name} = 0")
+    p.add_argument("--no-progress", action="store_true")
+
+
+def _weights(a: argparse.Namespace) -> LossWeights:
+    vals = {f.name: getattr(a, f"w_{f.name}") for f in dataclasses.fields(LossWeights)}
+    for name in _ABLATE:
+        if getattr(a, f"no_{name}"):
+            vals[name] = 0.0
+    return LossWeights(**vals)
+
+
+def _parts(items: list[str]) -> dict[str, bool]:
+    out = {}
+    for item in items:
+        name, _, state = item.partition("=")
+        if state not in ("on", "off"):
+            raise SystemExit(f"--part {item}: use NAME=on or NAME=off")
+        out[name] = state == "on"
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m train", description=__doc__)
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    _fit_args(sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)"))
+    ev = sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split")
+    ev.add_argument("--checkpoint", required=True)
+    ev.add_argument("--dataset", required=True)
+    ev.add_argument("--split", default="test", choices=("train", "val", "test"))
+    ev.add_argument("--category", default=None, help="default: the run's category")
+    ev.add_argument("--views", type=int, default=1)
+    ev.add_argument("--tau", type=float, default=0.01, help="F-score distance threshold")
+    ev.add_argument("--limit", type=int, default=None, help="evaluate at most this many samples")
+    ev.add_argument("--out", default=None, help="JSON path (default: next to the checkpoint)")
+    pr = sub.add_parser("predict", help="patches + OBJ + quad mesh + IGES + PNG from sketches")
+    pr.add_argument("--checkpoint", required=True)
+    pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
+    pr.add_argument("--out", required=True)
+    pr.add_argument("--part", action="append", default=[], help="toggle an optional part, e.g. turbine=off")
+    it = sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)")
+    it.add_argument("--checkpoint", required=True)
+    it.add_argument("--sketch-a", nargs="+", required=True)
+    it.add_argument("--sketch-b", nargs="+", required=True)
+    it.add_argument("--steps", type=int, default=5)
+    it.add_argument("--out", required=True)
+    a = parser.parse_args(argv)
+
+    import torch
+
+    if a.cmd == "fit":
+        from train.fit import FitSettings, fit
+
+        s = FitSettings(
+            dataset=a.dataset, category=a.category, template=a.template, out=a.out, steps=a.steps,
+            batch_size=a.batch_size, lr=a.lr, seed=a.seed, workers=a.workers, max_views=a.max_views,
+            n_points=a.points, image_size=a.image_size, checkpoint_every=a.checkpoint_every,
+            log_every=a.log_every, device=a.device, weights=_weights(a),
+        )  # fmt: skip
+        print(json.dumps(fit(s, progress=not a.no_progress)))
+    elif a.cmd == "evaluate":
+        from pathlib import Path
+
+        from train.evaluate import evaluate, format_table
+
+        out = a.out or str(Path(a.checkpoint).with_name(f"eval_{a.split}.json"))
+        with torch.no_grad():
+            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, a.tau, a.limit, out)
+        print(format_table(res))
+        print(f"saved {out}")
+    elif a.cmd == "predict":
+        from train.predict import predict
+
+        print(json.dumps(predict(a.checkpoint, a.sketch, a.out, _parts(a.part)), indent=1))
+    elif a.cmd == "interpolate":
+        from train.interpolate import interpolate
+
+        res = interpolate(a.checkpoint, a.sketch_a, a.sketch_b, a.out, a.steps)
+        print(json.dumps({k: v for k, v in res.items() if k != "params"}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

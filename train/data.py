@@ -1,0 +1,213 @@
+"""Streams dataset shards into training / evaluation batches.
+
+Shards: ``<dataset>/<category>/<split>-NNNNN.tar`` (WebDataset), members ``points.npy``,
+``sketch_<view>_<variant>.png``, ``meta.json`` (+ strokes/cameras, unused here).
+
+Training streams never end: each epoch re-shuffles the shard order with a seeded generator and
+each (rank, loader worker) slot reads a disjoint part (whole shards when there are enough, else
+every n-th sample), so every rank can run exactly the same number of steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import re
+import warnings
+from pathlib import Path
+from typing import Any, Iterator
+
+import cv2
+import numpy as np
+import torch
+import webdataset as wds
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from pipeline.errors import ModelError
+from pipeline.seeding import rng_for
+from train.augmentation import Jitter, jitter_image
+
+SPLITS = ("train", "val", "test")
+_SKETCH = re.compile(r"sketch_(\d+)_(\d+)\.png$")
+
+
+@dataclasses.dataclass(frozen=True)
+class DataSettings:
+    max_views: int = 4  # training draws 1..max_views views per sample
+    eval_views: int = 1  # evaluation uses views 0..eval_views-1, variant 0
+    n_points: int = 7000
+    image_size: int = 128
+    shuffle_buffer: int = 64
+    jitter: Jitter = Jitter()
+
+
+def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
+    """The split's shard files, sorted; raises ModelError when there are none."""
+    folder = Path(dataset) / category
+    urls = sorted(str(p) for p in folder.glob(f"{split}-*.tar"))
+    if not urls:
+        raise ModelError(folder, f"no {split}-*.tar shards")
+    return urls
+
+
+def to_network(img: np.ndarray) -> np.ndarray:
+    """8-bit black-on-white -> float32 with ink = 1, paper = 0."""
+    return (1.0 - img.astype(np.float32) / 255.0)[None]
+
+
+def read_png(data: bytes, size: int) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise ValueError("undecodable PNG")
+    if img.shape != (size, size):
+        img = cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def sketch_table(raw: dict) -> dict[int, list[str]]:
+    """view index -> sorted member names of its variants."""
+    table: dict[int, list[str]] = {}
+    for name in raw:
+        m = _SKETCH.match(name)
+        if m:
+            table.setdefault(int(m.group(1)), []).append(name)
+    return {v: sorted(names) for v, names in sorted(table.items())}
+
+
+def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, train: bool, flip_ok: bool) -> dict:
+    """Raw shard sample -> {"images" (V,1,S,S), "view_mask" (V,), "points" (n,6), "key", "meta"}."""
+    key = raw.get("__key__", "?")
+    try:
+        points = np.load(io.BytesIO(raw["points.npy"]), allow_pickle=False).astype(np.float32)
+        meta = json.loads(raw["meta.json"]) if "meta.json" in raw else {}
+        table = sketch_table(raw)
+    except Exception as exc:  # noqa: BLE001 - reported with the sample's name
+        raise ModelError(key, f"unreadable sample: {exc}") from exc
+    if points.ndim != 2 or points.shape[1] != 6 or not table:
+        raise ModelError(key, "needs points.npy (N,6) and at least one sketch")
+    views = list(table)
+    if train:
+        n = int(rng.integers(1, min(settings.max_views, len(views)) + 1))
+        chosen = sorted(rng.choice(views, size=n, replace=False).tolist())
+        names = [table[v][int(rng.integers(len(table[v])))] for v in chosen]
+        flip = bool(flip_ok and settings.jitter.flip and rng.random() < 0.5)
+        idx = rng.choice(len(points), size=settings.n_points, replace=len(points) < settings.n_points)
+    else:
+        names = [table[v][0] for v in views[: settings.eval_views]]
+        flip = False
+        idx = rng_for(0, "eval-points", key).choice(len(points), size=settings.n_points, replace=len(points) < settings.n_points)
+    width = settings.max_views if train else settings.eval_views
+    images = np.zeros((width, 1, settings.image_size, settings.image_size), np.float32)
+    mask = np.zeros(width, bool)
+    for i, name in enumerate(names):
+        img = read_png(raw[name], settings.image_size)
+        if train:
+            img = jitter_image(img, rng, settings.jitter, flip)
+        images[i] = to_network(img)
+        mask[i] = True
+    pts = points[np.sort(idx)]
+    if flip:  # a mirrored drawing shows the mirrored shape: mirror the target across x = 0
+        pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)
+    return {"images": images, "view_mask": mask, "points": pts, "key": key, "meta": meta}
+
+
+def collate(samples: list[dict]) -> dict[str, Any]:
+    return {
+        "images": torch.from_numpy(np.stack([s["images"] for s in samples])),
+        "view_mask": torch.from_numpy(np.stack([s["view_mask"] for s in samples])),
+        "points": torch.from_numpy(np.stack([s["points"] for s in samples])),
+        "key": [s["key"] for s in samples],
+        "meta": [s["meta"] for s in samples],
+    }
+
+
+class ShardStream(IterableDataset):
+    """Decoded samples of a shard list for one rank (and, inside, one loader worker)."""
+
+    def __init__(
+        self,
+        urls: list[str],
+        settings: DataSettings,
+        seed: int,
+        train: bool,
+        rank: int = 0,
+        world: int = 1,
+        flip_ok: bool = False,
+    ):
+        super().__init__()
+        self.urls, self.settings, self.seed, self.train = list(urls), settings, seed, train
+        self.rank, self.world, self.flip_ok = rank, world, flip_ok
+
+    def _slot(self) -> tuple[int, int]:
+        info = get_worker_info()
+        workers, worker = (info.num_workers, info.id) if info else (1, 0)
+        return self.rank * workers + worker, self.world * workers
+
+    def _raw(self, urls: list[str], slot: int, n_slots: int) -> Iterator[dict]:
+        """This slot's raw samples of one pass over urls."""
+        if len(urls) >= n_slots:
+            mine, every = urls[slot::n_slots], 1
+        else:
+            mine, every = urls, n_slots
+        stream = wds.WebDataset(mine, shardshuffle=False, nodesplitter=None, workersplitter=None, empty_check=False)
+        for i, raw in enumerate(stream):
+            if every == 1 or i % every == slot:
+                yield raw
+
+    def __iter__(self) -> Iterator[dict]:
+        slot, n_slots = self._slot()
+        if not self.train:
+            rng = rng_for(self.seed, "eval-data", slot)
+            for raw in self._raw(self.urls, slot, n_slots):
+                yield decode_sample(raw, self.settings, rng, False, False)
+            return
+        epoch = 0
+        while True:
+            produced = 0
+            # Shard order is the same for all slots (keyed by epoch only) so their parts stay disjoint.
+            order = rng_for(self.seed, "shard-order", epoch).permutation(len(self.urls))
+            rng = rng_for(self.seed, "train-data", slot, epoch)
+            buffer: list[dict] = []
+            for raw in self._raw([self.urls[i] for i in order], slot, n_slots):
+                produced += 1
+                buffer.append(raw)
+                if len(buffer) >= self.settings.shuffle_buffer:
+                    yield from self._decoded(buffer.pop(int(rng.integers(len(buffer)))), rng)
+            while buffer:
+                yield from self._decoded(buffer.pop(int(rng.integers(len(buffer)))), rng)
+            if produced == 0:  # an endless loop over nothing would hang the trainer
+                raise ModelError(self.urls[0], f"data slot {slot}/{n_slots} has no samples; use fewer workers/ranks")
+            epoch += 1
+
+    def _decoded(self, raw: dict, rng: np.random.Generator) -> Iterator[dict]:
+        """One decoded training sample, or nothing (with a warning) when the sample is bad."""
+        try:
+            yield decode_sample(raw, self.settings, rng, True, self.flip_ok)
+        except ModelError as exc:
+            warnings.warn(f"skipping bad sample {exc}")
+
+
+def make_loader(
+    dataset: str | Path,
+    category: str,
+    split: str,
+    settings: DataSettings,
+    seed: int,
+    batch_size: int,
+    workers: int = 0,
+    train: bool = True,
+    rank: int = 0,
+    world: int = 1,
+    flip_ok: bool = False,
+) -> DataLoader:
+    """A DataLoader of collated batches; the training one is endless, the eval one a single pass."""
+    stream = ShardStream(shard_urls(dataset, category, split), settings, seed, train, rank, world, flip_ok)
+    return DataLoader(
+        stream,
+        batch_size=batch_size,
+        num_workers=workers,
+        collate_fn=collate,
+        drop_last=train,
+        persistent_workers=False,
+    )

@@ -1,0 +1,1 @@
+"""Exports of predicted patches: welded triangle OBJ, quad mesh (ILP subdivision), IGES NURBS."""

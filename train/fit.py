@@ -1,0 +1,285 @@
+"""Training: sketches -> template parameters, the paper's loss, Adam, checkpoints with resume.
+
+Run directory layout::
+
+    <out>/config.json       settings of the run (a resume must match them)
+    <out>/checkpoint.pt     model + optimizer + step (rank 0, atomic)
+    <out>/log.csv           step, total and per-term losses, seconds
+    <out>/tb/               TensorBoard scalars
+    <out>/loss.png          loss curves
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.nn.parallel import DistributedDataParallel
+
+from pipeline.atomic import atomic_path, dumps_json, write_bytes
+from pipeline.seeding import derive_seed
+from train.data import DataSettings, make_loader
+from train.distributed import DistInfo, mean_over_ranks, setup, teardown
+from train.geometry.coons import evaluate_patches
+from train.losses.chamfer import chamfer_loss, match_points, normal_alignment_loss
+from train.losses.collision import collision_loss, collision_pairs
+from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
+from train.losses.weights import LossWeights
+from train.model import SketchToPatches
+from train.templates import Template, load_template
+
+TERMS = ("chamfer", "normal", "flat", "collision", "template_normal", "symmetry")
+CSV_FIELDS = ("step", "loss") + TERMS + ("seconds",)
+
+
+@dataclasses.dataclass(frozen=True)
+class FitSettings:
+    dataset: str
+    category: str
+    template: str
+    out: str
+    steps: int = 1000
+    batch_size: int = 8
+    lr: float = 1e-4
+    seed: int = 0
+    workers: int = 2
+    max_views: int = 4
+    n_points: int = 7000
+    image_size: int = 128
+    checkpoint_every: int = 500
+    log_every: int = 10
+    device: str | None = None
+    weights: LossWeights = LossWeights()
+
+    def identity(self) -> dict:
+        """Settings that define the run: a resume must match them (steps and logging may change)."""
+        d = dataclasses.asdict(self)
+        for k in ("steps", "checkpoint_every", "log_every", "device", "workers", "out"):
+            d.pop(k)
+        return d
+
+
+class Objective:
+    """The paper's loss terms for a template, per batch item."""
+
+    def __init__(self, template: Template, n_points: int = 7000, collision_grid: int = 8):
+        self.template = template
+        self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
+        self.pairs = collision_pairs(template, grid=collision_grid)
+        self.sym = template.symmetry_pairs()
+        self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
+        with torch.no_grad():
+            self.template_patches = template.patches_from_params(template.initial_params()[None])
+
+    def sample_st(self, generator: torch.Generator | None) -> Tensor:
+        """Uniform random (s, t) samples (S, 2) when given a generator, else a midpoint grid."""
+        n = self.side * self.side
+        if generator is not None:
+            return torch.rand(n, 2, generator=generator)
+        g = (torch.arange(self.side) + 0.5) / self.side
+        return torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+
+    def valid_mask(self, metas: list[dict], device: torch.device) -> Tensor | None:
+        """(B, P, 1): patches of optional parts a model lacks are left out (e.g. turbines)."""
+        if not self.template.optional_parts:
+            return None
+        mask = torch.ones(len(metas), self.template.num_patches, 1, dtype=torch.bool)
+        for b, meta in enumerate(metas):
+            has = (meta or {}).get("has_parts", {}) or {}
+            for part, patch_ids in self.template.optional_parts.items():
+                if not has.get(part, True):
+                    mask[b, patch_ids] = False
+        return mask.to(device)
+
+    def terms(self, params: Tensor, points: Tensor, st: Tensor, valid: Tensor | None, weights: LossWeights) -> dict[str, Tensor]:
+        """Each term per batch item (B,); terms with weight 0 are skipped (zeros) to save time."""
+        patches = self.template.patches_from_params(params)
+        st = st.to(params.device)
+        samples = evaluate_patches(patches, st)
+        target_xyz, target_n = points[..., :3], points[..., 3:]
+        matches = match_points(samples.points, target_xyz, None if valid is None else valid.expand(samples.jacobian.shape))
+        zero = params.new_zeros(params.shape[0])
+        out = {"chamfer": chamfer_loss(samples.points, samples.jacobian, target_xyz, valid, matches)}
+        out["normal"] = (
+            normal_alignment_loss(samples.normals, samples.jacobian, target_n, matches, valid) if weights.normal else zero
+        )
+        out["flat"] = flatness_loss(samples.points, st, samples.jacobian, valid) if weights.flat else zero
+        out["collision"] = collision_loss(patches, self.pairs, weights.collision_eps) if weights.collision else zero
+        if weights.template_normal:
+            tn = evaluate_patches(self.template_patches.to(params.device), st).normals[0]
+            out["template_normal"] = template_normal_loss(samples.normals, tn, samples.jacobian, valid)
+        else:
+            out["template_normal"] = zero
+        if weights.symmetry and self.sym.numel():
+            out["symmetry"] = symmetry_loss(self.template.points_from_params(params), self.sym, self.plane_x)
+        else:
+            out["symmetry"] = zero
+        return out
+
+    @staticmethod
+    def total(terms: dict[str, Tensor], weights: LossWeights) -> Tensor:
+        return sum(getattr(weights, k) * terms[k] for k in TERMS)
+
+
+def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings) -> None:
+    with atomic_path(path) as tmp:
+        torch.save(
+            {
+                "step": step,
+                "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "settings": dataclasses.asdict(settings),
+                "template": settings.template,
+                "num_params": model.num_params,
+            },
+            tmp,
+        )
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
+    return torch.load(path, map_location=device, weights_only=False)
+
+
+def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
+    model = SketchToPatches(template.initial_params())
+    model.load_state_dict(ckpt["model"])
+    return model.eval()
+
+
+def _read_log(path: Path, upto: int) -> list[dict]:
+    if not path.exists():
+        return []
+    with open(path) as f:
+        return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
+
+
+def fit(settings: FitSettings, progress: bool = True) -> dict:
+    """Train (or resume) a run; returns {"step", "last_loss", "out"}. Works under torchrun."""
+    info = setup(settings.device)
+    try:
+        return _fit(settings, info, progress)
+    finally:
+        teardown(info)
+
+
+def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
+    out = Path(settings.out)
+    template = load_template(settings.template)
+    torch.manual_seed(settings.seed)  # same initial weights on every rank
+    model = SketchToPatches(template.initial_params()).to(info.device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
+    ckpt_path, start = out / "checkpoint.pt", 0
+    if ckpt_path.exists():
+        ckpt = load_checkpoint(ckpt_path, info.device)
+        saved = FitSettings(**{**ckpt["settings"], "weights": LossWeights(**ckpt["settings"]["weights"])})
+        if saved.identity() != settings.identity():
+            raise ValueError(f"{out}: existing run has different settings; use another --out")
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        start = int(ckpt["step"])
+    net: torch.nn.Module = DistributedDataParallel(model) if info.enabled else model
+    objective = Objective(template, settings.n_points)
+    data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size)
+    if template.symmetry is not None:
+        data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))
+    # A resumed run draws a fresh, still seeded data order keyed by the step it resumes from.
+    loader = make_loader(
+        settings.dataset, settings.category, "train", data, derive_seed(settings.seed, "data", start),
+        settings.batch_size, settings.workers, True, info.rank, info.world, template.symmetry is not None,
+    )  # fmt: skip
+    logger = _Logger(out, start, info, settings) if info.is_main else None
+    bar = None
+    if progress and info.is_main and start < settings.steps:
+        from tqdm import tqdm
+
+        bar = tqdm(total=settings.steps, initial=start, desc="fit", dynamic_ncols=True)
+    stream = iter(loader)
+    net.train()
+    last = float("nan")
+    t0 = time.perf_counter()
+    for step in range(start, settings.steps):
+        batch = next(stream)
+        images = batch["images"].to(info.device)
+        params = net(images, batch["view_mask"].to(info.device))
+        gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
+        terms = objective.terms(params, batch["points"].to(info.device), objective.sample_st(gen),
+                                objective.valid_mask(batch["meta"], info.device), settings.weights)  # fmt: skip
+        loss = objective.total(terms, settings.weights).mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        done = step + 1
+        if done % settings.log_every == 0 or done == settings.steps:
+            row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
+            last = float(mean_over_ranks(loss.detach(), info))
+            if logger:
+                logger.log(done, last, row, time.perf_counter() - t0)
+        if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
+            save_checkpoint(ckpt_path, model, optimizer, done, settings)
+        if bar:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss.item():.4f}")
+    if bar:
+        bar.close()
+    if logger:
+        logger.close()
+    return {"step": settings.steps, "last_loss": last, "out": str(out), "param_digest": param_digest(model)}
+
+
+def param_digest(model: torch.nn.Module) -> str:
+    """Hash of the trainable parameters: equal on every rank when DDP keeps them in sync.
+
+    (BatchNorm running statistics are per-rank between DDP's buffer broadcasts; rank 0's are saved.)
+    """
+    h = hashlib.sha256()
+    for name, t in sorted(model.named_parameters()):
+        h.update(name.encode())
+        h.update(t.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+class _Logger:
+    """CSV + TensorBoard + loss plot, rank 0 only. A resume drops log rows past the checkpoint."""
+
+    def __init__(self, out: Path, start: int, info: DistInfo, settings: FitSettings):
+        from torch.utils.tensorboard import SummaryWriter
+
+        out.mkdir(parents=True, exist_ok=True)
+        cfg = {**dataclasses.asdict(settings), "world_size": info.world}
+        write_bytes(out / "config.json", dumps_json(cfg).encode())
+        self.csv_path = out / "log.csv"
+        rows = _read_log(self.csv_path, start)
+        with atomic_path(self.csv_path) as tmp, open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, CSV_FIELDS)
+            w.writeheader()
+            w.writerows(rows)
+        self.file = open(self.csv_path, "a", newline="")
+        self.writer = csv.DictWriter(self.file, CSV_FIELDS)
+        self.tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
+        self.out = out
+
+    def log(self, step: int, loss: float, terms: dict[str, float], seconds: float) -> None:
+        self.writer.writerow({"step": step, "loss": loss, **terms, "seconds": round(seconds, 3)})
+        self.file.flush()
+        self.tb.add_scalar("loss/total", loss, step)
+        for k, v in terms.items():
+            self.tb.add_scalar(f"loss/{k}", v, step)
+
+    def close(self) -> None:
+        from train.plots import plot_losses
+
+        self.file.close()
+        self.tb.close()
+        plot_losses(self.csv_path, self.out / "loss.png")
+
+
+def read_config(run_dir: str | Path) -> dict:
+    return json.loads((Path(run_dir) / "config.json").read_text())

@@ -1,0 +1,60 @@
+"""Fixed-grid triangulation of the unit square and of patches; a welded mesh for export."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from train.geometry.coons import coons_points
+
+
+def grid_triangulation(k: int) -> Tensor:
+    """Faces ``(2(k−1)², 3)`` over the vertices of ``grid_params(k)`` (index = i_t*k + i_s).
+
+    Counter-clockwise in (s, t), so a triangle's normal points along P_s × P_t.
+    """
+    i_t, i_s = torch.meshgrid(torch.arange(k - 1), torch.arange(k - 1), indexing="ij")
+    a = (i_t * k + i_s).reshape(-1)
+    b, c, d = a + 1, a + k + 1, a + k
+    return torch.cat([torch.stack([a, b, c], -1), torch.stack([a, c, d], -1)], 0).to(torch.int64)
+
+
+def triangulate_patches(patches: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """Images of a k×k boundary grid: vertices ``(..., P, k*k, 3)`` (differentiable), faces ``(F, 3)``."""
+    from train.geometry.sampling import grid_params  # local: sampling imports this module
+
+    st = grid_params(k, dtype=patches.dtype).to(patches.device)
+    return coons_points(patches, st), grid_triangulation(k).to(patches.device)
+
+
+def welded_mesh(patches: Tensor, k: int = 16, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """One triangle mesh of all patches ``(P, 4, 4, 3)`` with coincident boundary vertices merged.
+
+    Shared boundary curves are evaluated from the same control points, so their grid vertices
+    coincide up to rounding and are welded (within ``tol``), giving a closed mesh for conforming
+    templates. Each cluster keeps its lowest vertex index (deterministic); collapsed triangles
+    are dropped. Returns float64 vertices ``(V, 3)`` and int64 faces ``(F, 3)``.
+    """
+    verts, faces = triangulate_patches(patches.detach().double().cpu(), k)
+    num_p, per = verts.shape[0], verts.shape[1]
+    v = verts.reshape(-1, 3).numpy()
+    f = (faces.numpy()[None] + per * np.arange(num_p)[:, None, None]).reshape(-1, 3)
+    parent = np.arange(len(v))
+    for i, j in sorted(cKDTree(v).query_pairs(tol)):
+        ri, rj = _root(parent, i), _root(parent, j)
+        if ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)
+    roots = np.array([_root(parent, i) for i in range(len(v))])
+    keep, remap = np.unique(roots, return_inverse=True)
+    f = remap[f]
+    good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    return v[keep], f[good].astype(np.int64)
+
+
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return int(i)

@@ -1,0 +1,57 @@
+"""Sketch -> patch parameters network: ResNet-18 per view, max-pool over views, MLP head.
+
+The head's output layer starts with zero weights and bias = the template's parameters, so an
+untrained network predicts the template exactly (the paper's initialization).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from train.resnet import ResNet18
+
+HIDDEN = (1024, 512, 256)
+
+
+class SketchToPatches(nn.Module):
+    """images (B, V, 1, H, W) [+ view mask (B, V)] -> template parameters (B, D)."""
+
+    def __init__(self, initial_params: torch.Tensor, hidden: tuple[int, ...] = HIDDEN):
+        super().__init__()
+        initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
+        self.num_params = int(initial_params.numel())
+        self.encoder = ResNet18(1)
+        dims = (ResNet18.out_features,) + tuple(hidden)
+        # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
+        # activation (the latent used for interpolation) is reachable.
+        self.hidden = nn.ModuleList(
+            nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True)) for a, b in zip(dims[:-1], dims[1:])
+        )
+        self.out = nn.Linear(dims[-1], self.num_params)
+        nn.init.zeros_(self.out.weight)
+        with torch.no_grad():
+            self.out.bias.copy_(initial_params)
+
+    def encode(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-view ResNet codes max-pooled over the views present -> (B, 512)."""
+        if images.dim() == 4:  # (B, 1, H, W): one view
+            images = images.unsqueeze(1)
+        b, v = images.shape[:2]
+        codes = self.encoder(images.flatten(0, 1)).view(b, v, -1)
+        if view_mask is not None:
+            codes = codes.masked_fill(~view_mask.bool().unsqueeze(-1), float("-inf"))
+        return codes.max(dim=1).values
+
+    def latent(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
+        """The first hidden layer's activation (B, 1024): the space `interpolate` blends in."""
+        return self.hidden[0](self.encode(images, view_mask))
+
+    def decode_latent(self, z: torch.Tensor) -> torch.Tensor:
+        """First-hidden-layer activation -> parameters (B, D)."""
+        for layer in self.hidden[1:]:
+            z = layer(z)
+        return self.out(z)
+
+    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
+        return self.decode_latent(self.latent(images, view_mask))

@@ -1,0 +1,48 @@
+"""Nearest neighbours without a dense N×M matrix on CPU, with differentiable distances.
+
+The search runs on detached coordinates (scipy cKDTree per batch item on CPU, chunked
+torch.cdist on CUDA); distances are then recomputed in torch from the gathered neighbours so
+gradients flow to both point sets.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+
+def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tensor:
+    """Index of the nearest ``reference`` point for each ``query`` point.
+
+    ``query (B, N, 3)``, ``reference (B, M, 3)`` → ``(B, N)`` int64 on the query's device.
+    """
+    q, r = query.detach(), reference.detach()
+    if q.is_cuda:
+        out = []
+        for start in range(0, q.shape[1], chunk):
+            out.append(torch.cdist(q[:, start : start + chunk], r).argmin(dim=-1))
+        return torch.cat(out, dim=1)
+    qn = q.double().cpu().numpy()
+    rn = r.double().cpu().numpy()
+    idx = np.empty(qn.shape[:2], dtype=np.int64)
+    for b in range(qn.shape[0]):
+        idx[b] = cKDTree(rn[b]).query(qn[b], k=1, workers=1)[1]
+    return torch.from_numpy(idx).to(query.device)
+
+
+def gather_points(points: Tensor, idx: Tensor) -> Tensor:
+    """``points (B, M, C)`` at ``idx (B, N)`` → ``(B, N, C)``."""
+    return torch.gather(points, 1, idx[..., None].expand(*idx.shape, points.shape[-1]))
+
+
+def nearest_distances(query: Tensor, reference: Tensor, squared: bool = False) -> tuple[Tensor, Tensor]:
+    """Distance from each query point to its nearest reference point, differentiable.
+
+    Returns ``(dist (B, N), idx (B, N))``; ``squared`` gives squared Euclidean distances. The
+    unsquared distance uses sqrt of a clamped square (gradient 0, not NaN, at coincident points).
+    """
+    idx = nearest_indices(query, reference)
+    sq = ((query - gather_points(reference, idx)) ** 2).sum(-1)
+    return (sq if squared else torch.sqrt(sq.clamp_min(1e-24))), idx

@@ -1,0 +1,36 @@
+"""Loss-curve plots from a run's log.csv (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from pipeline.atomic import atomic_path  # noqa: E402
+
+
+def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
+    """One panel per logged term (log scale), step on x."""
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+    keys = [k for k in rows[0] if k not in ("step", "seconds")]
+    steps = [int(r["step"]) for r in rows]
+    fig, axes = plt.subplots(1, len(keys), figsize=(3 * len(keys), 2.6), squeeze=False)
+    for ax, k in zip(axes[0], keys):
+        vals = [float(r[k]) for r in rows]
+        ax.plot(steps, vals, lw=1)
+        if all(v > 0 for v in vals):
+            ax.set_yscale("log")
+        ax.set_title(k, fontsize=9)
+        ax.set_xlabel("step", fontsize=8)
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    with atomic_path(png_path) as tmp:
+        fig.savefig(tmp, dpi=100, metadata={"Software": None})
+    plt.close(fig)

@@ -1,0 +1,58 @@
+"""Patch templates: the file format (format.py), built-in spheres (sphere.py), and a resolver.
+
+Category templates are JSON files in train/templates/data/<category>.json (built by
+train/templates/build*). ``load_template`` accepts "sphere24", "sphere54", a category name, or a
+path to a template file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from train.templates.format import (
+    Curve,
+    FreePoint,
+    JunctionPoint,
+    Patch,
+    Symmetry,
+    Template,
+    TemplateError,
+    load_template_file,
+    save_template,
+)
+from train.templates.sphere import sphere24, sphere54, sphere_template
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+BUILTIN = {"sphere24": sphere24, "sphere54": sphere54}
+
+
+def load_template(name_or_path: str | Path) -> Template:
+    """Resolve a built-in sphere, a category template under ``DATA_DIR``, or a file path."""
+    key = str(name_or_path)
+    if key in BUILTIN:
+        return BUILTIN[key]()
+    candidate = DATA_DIR / f"{key}.json"
+    if "/" not in key and candidate.exists():
+        return load_template_file(candidate)
+    path = Path(name_or_path)
+    if path.exists():
+        return load_template_file(path)
+    raise TemplateError(f"{key}: no built-in template, no {candidate}, and no such file")
+
+
+__all__ = [
+    "Curve",
+    "DATA_DIR",
+    "FreePoint",
+    "JunctionPoint",
+    "Patch",
+    "Symmetry",
+    "Template",
+    "TemplateError",
+    "load_template",
+    "load_template_file",
+    "save_template",
+    "sphere24",
+    "sphere54",
+    "sphere_template",
+]

@@ -1,0 +1,127 @@
+"""Category templates from procedural models: per model cuboids → template, keep the median.
+
+For each of ``n_models`` procedural models of a category: normalize like the prepare stage
+(bounding-box centre at the origin, farthest vertex at radius 1), turn its part boxes into a
+template, and sample its surface. The template of the model with the smallest summed Chamfer
+distance to all others is the category template. Labels present in only some models (airplane
+engines) are optional parts; the median is taken among models that have every label, so the
+template carries the optional patches and the trainer can toggle them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from pipeline.normalize import apply_transform, unit_sphere_transform
+from pipeline.seeding import rng_for
+from pipeline.sheets import save_png
+from train.templates.format import Template, save_template
+from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
+from train.templates.median import chamfer_matrix, median_index, sample_surface
+from train.templates.part_boxes import category_boxes
+from train.templates.render import render_template
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+Progress = Callable[[int, int, str], None] | None
+
+
+@dataclass(frozen=True)
+class BuildSettings:
+    n_models: int = 16
+    seed: int = 0
+    chamfer_points: int = 2048
+    template: TemplateSettings = TemplateSettings()
+
+
+@dataclass
+class CategoryResult:
+    template: Template
+    model_ids: list[str]
+    chosen: str
+    chamfer_sums: list[float]
+    failures: dict[str, str]
+
+
+def build_category(category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None) -> CategoryResult:
+    """The category template (median model's), built from ``settings.n_models`` procedural models."""
+    from pipeline.shapes import generate
+
+    clouds, ids, label_sets, boxes_of = [], [], [], {}
+    failures: dict[str, str] = {}
+    for index in range(settings.n_models):
+        model = generate(category, index, seed=settings.seed, defect_fraction=0.0)
+        try:
+            v, f = model.merged()
+            center, scale = unit_sphere_transform(v)
+            boxes = normalize_boxes(category_boxes(category, model.cuboids), center, scale)
+            rng = rng_for(settings.seed, "templates", category, model.model_id)
+            clouds.append(sample_surface(apply_transform(v, center, scale), f, settings.chamfer_points, rng))
+        except ValueError as exc:  # a degenerate model is skipped, not fatal
+            failures[model.model_id] = str(exc)
+            continue
+        ids.append(model.model_id)
+        label_sets.append({b.label for b in boxes})
+        boxes_of[model.model_id] = boxes
+        if progress:
+            progress(index + 1, settings.n_models, f"{category} {model.model_id}")
+    if not ids:
+        raise ValueError(f"{category}: no usable models ({failures})")
+    dist = chamfer_matrix(clouds)
+    all_labels = set().union(*label_sets)
+    complete = [i for i, s in enumerate(label_sets) if s == all_labels] or list(range(len(ids)))
+    sums = dist.sum(axis=1)
+    chosen = complete[median_index(sums[complete][:, None])]
+    optional = sorted(all_labels - set.intersection(*label_sets))
+    tsettings = TemplateSettings(
+        snap_tol=settings.template.snap_tol,
+        symmetric=settings.template.symmetric,
+        optional_labels=tuple(optional),
+    )
+    tpl = template_from_boxes(
+        boxes_of[ids[chosen]],
+        name=category,
+        settings=tsettings,
+        metadata={
+            "category": category,
+            "source": "procedural",
+            "seed": settings.seed,
+            "n_models": len(ids),
+            "median_model": ids[chosen],
+        },
+    )
+    return CategoryResult(tpl, ids, ids[chosen], [float(s) for s in sums], failures)
+
+
+def write_template_png(tpl: Template, path: Path, size: int = 384) -> None:
+    save_png(path, render_template(tpl, size=size))
+
+
+def build_all(
+    categories: list[str],
+    out_dir: Path = DATA_DIR,
+    settings: BuildSettings = BuildSettings(),
+    png: bool = True,
+    spheres: bool = True,
+    progress: Progress = None,
+) -> dict[str, CategoryResult]:
+    """Write ``<out_dir>/<category>.json`` (+ ``.png``) per category, and sphere PNGs."""
+    out_dir = Path(out_dir)
+    results = {}
+    for n, category in enumerate(categories):
+        res = build_category(category, settings)
+        save_template(res.template, out_dir / f"{category}.json")
+        if png:
+            write_template_png(res.template, out_dir / f"{category}.png")
+        results[category] = res
+        if progress:
+            progress(n + 1, len(categories), f"{category}: {res.template.num_patches} patches, median {res.chosen}")
+    if png and spheres:
+        from train.templates.sphere import sphere24, sphere54
+
+        for name, make in (("sphere24", sphere24), ("sphere54", sphere54)):
+            write_template_png(make(), out_dir / f"{name}.png")
+    return results

@@ -1,0 +1,84 @@
+"""Per-part bounding boxes → the cuboid collection a template is built from.
+
+Labels lose their side and instance suffixes ("wing_l", "engine0_r" → "wing", "engine") so a
+part and its mirror image share a label. Mugs are refined as the paper describes: the cup's box
+becomes four walls and a bottom (an interior void open at the top) and the handle's box becomes
+three bars that close a loop with the cup wall (a hole in the handle), so the template has genus 1.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Sequence
+
+import numpy as np
+
+from train.templates.lattice import Box, CuboidLike
+
+WALL = 0.12  # cup wall thickness, fraction of the cup's half-width
+BOTTOM = 0.12  # cup bottom thickness, fraction of its height
+BAR = 0.25  # handle bar thickness, fraction of the handle's reach / height
+
+
+def base_label(label: str) -> str:
+    return re.sub(r"\d+$", "", re.sub(r"_(l|r|left|right)$", "", label))
+
+
+def category_boxes(category: str, cuboids: Sequence[CuboidLike]) -> list[Box]:
+    boxes = [Box(base_label(c.label), np.asarray(c.lo, float), np.asarray(c.hi, float)) for c in cuboids]
+    if category == "mug":
+        boxes = _mug(boxes)
+    return boxes
+
+
+def _mug(boxes: list[Box]) -> list[Box]:
+    cups = [b for b in boxes if b.label == "cup"]
+    if not cups:
+        return boxes
+    cup = cups[0]
+    out = [b for b in boxes if b.label not in ("cup", "handle")]
+    out += hollow_cup(cup)
+    for h in (b for b in boxes if b.label == "handle"):
+        out += handle_loop(h, cup)
+    return out
+
+
+def hollow_cup(cup: Box) -> list[Box]:
+    """Bottom slab plus four walls: the union is a box with a void open at the top."""
+    lo, hi = cup.lo, cup.hi
+    w = WALL * 0.5 * min(hi[0] - lo[0], hi[2] - lo[2])
+    b = BOTTOM * (hi[1] - lo[1])
+    return [
+        Box("cup", lo.copy(), np.array([hi[0], lo[1] + b, hi[2]])),
+        Box("cup", lo.copy(), np.array([lo[0] + w, hi[1], hi[2]])),
+        Box("cup", np.array([hi[0] - w, lo[1], lo[2]]), hi.copy()),
+        Box("cup", lo.copy(), np.array([hi[0], hi[1], lo[2] + w])),
+        Box("cup", np.array([lo[0], lo[1], hi[2] - w]), hi.copy()),
+    ]
+
+
+def handle_loop(handle: Box, cup: Box) -> list[Box]:
+    """Top bar, bottom bar and outer bar: with the cup wall they enclose the handle's hole."""
+    lo, hi = handle.lo.copy(), handle.hi.copy()
+    # The handle sticks out of the cup along the horizontal axis where it reaches farthest.
+    reach = [hi[0] - cup.hi[0], cup.lo[0] - lo[0], hi[2] - cup.hi[2], cup.lo[2] - lo[2]]
+    k = int(np.argmax(reach))
+    axis, outward = (0, 2)[k // 2], 1 if k % 2 == 0 else -1
+    wall = cup.hi[axis] if outward > 0 else cup.lo[axis]
+    if reach[k] <= 0:
+        return [handle]
+    # Start the bars inside the wall so they overlap it; the outer bar sits at the far end.
+    if outward > 0:
+        lo[axis] = min(lo[axis], wall - 0.5 * WALL * (cup.hi[axis] - cup.lo[axis]) * 0.5)
+    else:
+        hi[axis] = max(hi[axis], wall + 0.5 * WALL * (cup.hi[axis] - cup.lo[axis]) * 0.5)
+    t_out = BAR * reach[k]
+    t_y = BAR * (hi[1] - lo[1])
+    top = Box("handle", np.array([lo[0], hi[1] - t_y, lo[2]]), hi.copy())
+    bottom = Box("handle", lo.copy(), np.array([hi[0], lo[1] + t_y, hi[2]]))
+    o_lo, o_hi = lo.copy(), hi.copy()
+    if outward > 0:
+        o_lo[axis] = hi[axis] - t_out
+    else:
+        o_hi[axis] = lo[axis] + t_out
+    return [top, bottom, Box("handle", o_lo, o_hi)]
