@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--split", default="test", choices=("train", "val", "test"))
     ev.add_argument("--category", default=None, help="default: the run's category")
     ev.add_argument("--views", type=int, default=1)
-    ev.add_argument("--tau", type=float, default=0.01, help="F-score distance threshold")
+    ev.add_argument("--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)")
     ev.add_argument("--limit", type=int, default=None, help="evaluate at most this many samples")
     ev.add_argument("--out", default=None, help="JSON path (default: next to the checkpoint)")
     pr = sub.add_parser("predict", help="patches + OBJ + quad mesh + IGES + PNG from sketches")
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
 
         out = a.out or str(Path(a.checkpoint).with_name(f"eval_{a.split}.json"))
         with torch.no_grad():
-            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, a.tau, a.limit, out)
+            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out)
         print(format_table(res))
         print(f"saved {out}")
     elif a.cmd == "predict":

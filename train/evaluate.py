@@ -3,10 +3,12 @@ for the trained network and for the template alone (the baseline every model mus
 
 Metrics (means over samples):
   chamfer          the paper's L_Ch: unsquared distances, Jacobian-weighted on the patch side
-  normal, flat, template_normal   the paper's loss terms of the same names
-  intersecting_pairs   Σ of the smooth collision indicator / 2 ≈ number of intersecting patch pairs
-  chamfer_sq_x1000 peers' Chamfer (AtlasNet / Pixel2Mesh): mean squared distances both ways, ×1000
-  fscore           F-score at distance tau (default 0.01 of the unit-sphere frame)
+  normal, flat, template_normal, collision   the paper's loss terms of the same names
+  intersecting_pairs   number of patch pairs whose triangulations cross (exact test)
+  chamfer_sq_x1000 peers' Chamfer (AtlasNet / Pixel2Mesh): squared distances, the two directed
+                   means summed, ×1000, between area-uniform samples of the patches and the target
+  normal_consistency   mean |cos| between nearest-neighbour normals, both directions
+  fscore@τ         F-score at distance τ on the unit-sphere frame, one per requested τ
 """
 
 from __future__ import annotations
@@ -17,40 +19,42 @@ import torch
 
 from pipeline.atomic import write_json
 from train.data import DataSettings, make_loader
-from train.fit import Objective, load_checkpoint, model_from_checkpoint
-from train.geometry.coons import coons_points
-from train.losses.collision import collision_loss
+from train.fit import load_checkpoint, model_from_checkpoint
+from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
-from train.nn_search import gather_points, nearest_indices
+from train.metrics import chamfer_l2_x1000, count_intersecting_pairs, fscore, normal_consistency
+from train.objective import Objective
 from train.templates import load_template
 
-METRICS = ("chamfer", "normal", "flat", "template_normal", "intersecting_pairs", "chamfer_sq_x1000", "fscore")
+LOSS_METRICS = ("chamfer", "normal", "flat", "template_normal", "collision")
+PEER_METRICS = ("chamfer_sq_x1000", "normal_consistency")
 
 
-def peer_metrics(patch_points: torch.Tensor, target: torch.Tensor, tau: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Squared Chamfer ×1000 and F-score per item; ``patch_points (B, Q, 3)``, ``target (B, M, 3)``."""
-    d_pt = ((patch_points - gather_points(target, nearest_indices(patch_points, target))) ** 2).sum(-1)
-    d_tp = ((target - gather_points(patch_points, nearest_indices(target, patch_points))) ** 2).sum(-1)
-    cd = 1000.0 * (d_pt.mean(-1) + d_tp.mean(-1))
-    precision = (d_pt < tau * tau).float().mean(-1)
-    recall = (d_tp < tau * tau).float().mean(-1)
-    f = 2 * precision * recall / (precision + recall).clamp_min(1e-12)
-    return cd, f
+def metric_names(taus: tuple[float, ...]) -> tuple[str, ...]:
+    return LOSS_METRICS + ("intersecting_pairs",) + PEER_METRICS + tuple(f"fscore@{t:g}" for t in taus)
 
 
-def batch_metrics(objective: Objective, params: torch.Tensor, batch: dict, tau: float) -> dict[str, torch.Tensor]:
+def batch_metrics(
+    objective: Objective, params: torch.Tensor, batch: dict, taus: tuple[float, ...], generator: torch.Generator
+) -> dict[str, torch.Tensor]:
+    """Every metric per batch item ``(B,)`` for network outputs ``params (B, D)``."""
     points = batch["points"].to(params.device)
-    st = objective.sample_st(None)
-    valid = objective.valid_mask(batch["meta"], params.device)
-    terms = objective.terms(params, points, st, valid, LossWeights(collision=0.0, symmetry=0.0))
+    target, target_n = points[..., :3], points[..., 3:]
+    mask = objective.patch_mask(batch["meta"], params.device)
+    weights = LossWeights(symmetry=0.0)
+    terms = objective.terms(params, points, objective.sample_st(None), mask, weights)
+    out = {k: terms[k] for k in LOSS_METRICS}
     patches = objective.template.patches_from_params(params)
-    pp = coons_points(patches, st.to(params.device))
-    if valid is not None:  # absent optional parts do not count in the peers' metrics either
-        pp = torch.where(valid[..., None], pp, pp.new_full((), 1e6))
-    cd, f = peer_metrics(pp.flatten(1, 2), points[..., :3], tau)
-    out = {k: terms[k] for k in ("chamfer", "normal", "flat", "template_normal")}
-    out["intersecting_pairs"] = collision_loss(patches, objective.pairs) / 2.0
-    out["chamfer_sq_x1000"], out["fscore"] = cd, f
+    # peers' metrics on area-uniform samples of the present patches, as many as the target has
+    samples = [sample_surface_uniform(p if mask is None else p[mask[b]], target.shape[1], generator)
+               for b, p in enumerate(patches)]  # fmt: skip
+    pp = torch.stack([x for x, _ in samples]).to(target.dtype)
+    pn = torch.stack([n for _, n in samples]).to(target.dtype)
+    out["chamfer_sq_x1000"] = chamfer_l2_x1000(pp, target)
+    out["normal_consistency"] = normal_consistency(pp, pn, target, target_n)
+    for t in taus:
+        out[f"fscore@{t:g}"] = fscore(pp, target, t)
+    out["intersecting_pairs"] = torch.tensor([float(count_intersecting_pairs(p, objective.pairs)) for p in patches])
     return out
 
 
@@ -61,7 +65,7 @@ def evaluate(
     split: str = "test",
     category: str | None = None,
     views: int = 1,
-    tau: float = 0.01,
+    taus: tuple[float, ...] = (0.02, 0.05),
     limit: int | None = None,
     out: str | Path | None = None,
     batch_size: int = 8,
@@ -72,15 +76,18 @@ def evaluate(
     template = load_template(s["template"])
     model = model_from_checkpoint(ckpt, template)
     objective = Objective(template, s["n_points"])
+    names = metric_names(tuple(taus))
+    # the same evaluation samples on every call, and for the network as for the template
+    generators = {name: torch.Generator().manual_seed(0) for name in ("model", "template")}
     data = DataSettings(eval_views=views, n_points=s["n_points"], image_size=s["image_size"])
     loader = make_loader(dataset, category or s["category"], split, data, 0, batch_size, train=False)
-    sums = {"model": {k: 0.0 for k in METRICS}, "template": {k: 0.0 for k in METRICS}}
+    sums = {"model": {k: 0.0 for k in names}, "template": {k: 0.0 for k in names}}
     count = 0
     base = template.initial_params()[None]
     for batch in loader:
         params = model(batch["images"], batch["view_mask"])
         for name, p in (("model", params), ("template", base.expand_as(params))):
-            for k, v in batch_metrics(objective, p, batch, tau).items():
+            for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
                 sums[name][k] += float(v.sum())
         count += len(batch["key"])
         if limit and count >= limit:
@@ -91,7 +98,7 @@ def evaluate(
         "split": split,
         "samples": count,
         "views": views,
-        "fscore_tau": tau,
+        "fscore_taus": list(taus),
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},
     }
@@ -102,7 +109,7 @@ def evaluate(
 
 def format_table(result: dict) -> str:
     lines = [f"{'metric':<20}{'model':>14}{'template':>14}"]
-    for k in METRICS:
+    for k in result["model"]:
         lines.append(f"{k:<20}{result['model'][k]:>14.6g}{result['template'][k]:>14.6g}")
     return "\n".join(lines)
 

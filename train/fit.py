@@ -15,7 +15,6 @@ import csv
 import hashlib
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -28,15 +27,12 @@ from pipeline.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.seeding import derive_seed
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
-from train.geometry.coons import evaluate_patches
-from train.losses.chamfer import chamfer_loss, match_points, normal_alignment_loss
-from train.losses.collision import collision_loss, collision_pairs
-from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
+from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights
 from train.model import SketchToPatches
+from train.objective import Objective
 from train.templates import Template, load_template
 
-TERMS = ("chamfer", "normal", "flat", "collision", "template_normal", "symmetry")
 CSV_FIELDS = ("step", "loss") + TERMS + ("seconds",)
 
 
@@ -65,68 +61,6 @@ class FitSettings:
         for k in ("steps", "checkpoint_every", "log_every", "device", "workers", "out"):
             d.pop(k)
         return d
-
-
-class Objective:
-    """The paper's loss terms for a template, per batch item."""
-
-    def __init__(self, template: Template, n_points: int = 7000, collision_grid: int = 8):
-        self.template = template
-        self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
-        self.pairs = collision_pairs(template, grid=collision_grid)
-        self.sym = template.symmetry_pairs()
-        self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
-        with torch.no_grad():
-            self.template_patches = template.patches_from_params(template.initial_params()[None])
-
-    def sample_st(self, generator: torch.Generator | None) -> Tensor:
-        """Uniform random (s, t) samples (S, 2) when given a generator, else a midpoint grid."""
-        n = self.side * self.side
-        if generator is not None:
-            return torch.rand(n, 2, generator=generator)
-        g = (torch.arange(self.side) + 0.5) / self.side
-        return torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-
-    def valid_mask(self, metas: list[dict], device: torch.device) -> Tensor | None:
-        """(B, P, 1): patches of optional parts a model lacks are left out (e.g. turbines)."""
-        if not self.template.optional_parts:
-            return None
-        mask = torch.ones(len(metas), self.template.num_patches, 1, dtype=torch.bool)
-        for b, meta in enumerate(metas):
-            has = (meta or {}).get("has_parts", {}) or {}
-            for part, patch_ids in self.template.optional_parts.items():
-                if not has.get(part, True):
-                    mask[b, patch_ids] = False
-        return mask.to(device)
-
-    def terms(self, params: Tensor, points: Tensor, st: Tensor, valid: Tensor | None, weights: LossWeights) -> dict[str, Tensor]:
-        """Each term per batch item (B,); terms with weight 0 are skipped (zeros) to save time."""
-        patches = self.template.patches_from_params(params)
-        st = st.to(params.device)
-        samples = evaluate_patches(patches, st)
-        target_xyz, target_n = points[..., :3], points[..., 3:]
-        matches = match_points(samples.points, target_xyz, None if valid is None else valid.expand(samples.jacobian.shape))
-        zero = params.new_zeros(params.shape[0])
-        out = {"chamfer": chamfer_loss(samples.points, samples.jacobian, target_xyz, valid, matches)}
-        out["normal"] = (
-            normal_alignment_loss(samples.normals, samples.jacobian, target_n, matches, valid) if weights.normal else zero
-        )
-        out["flat"] = flatness_loss(samples.points, st, samples.jacobian, valid) if weights.flat else zero
-        out["collision"] = collision_loss(patches, self.pairs, weights.collision_eps) if weights.collision else zero
-        if weights.template_normal:
-            tn = evaluate_patches(self.template_patches.to(params.device), st).normals[0]
-            out["template_normal"] = template_normal_loss(samples.normals, tn, samples.jacobian, valid)
-        else:
-            out["template_normal"] = zero
-        if weights.symmetry and self.sym.numel():
-            out["symmetry"] = symmetry_loss(self.template.points_from_params(params), self.sym, self.plane_x)
-        else:
-            out["symmetry"] = zero
-        return out
-
-    @staticmethod
-    def total(terms: dict[str, Tensor], weights: LossWeights) -> Tensor:
-        return sum(getattr(weights, k) * terms[k] for k in TERMS)
 
 
 def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings) -> None:
@@ -211,8 +145,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         params = net(images, batch["view_mask"].to(info.device))
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
         terms = objective.terms(params, batch["points"].to(info.device), objective.sample_st(gen),
-                                objective.valid_mask(batch["meta"], info.device), settings.weights)  # fmt: skip
-        loss = objective.total(terms, settings.weights).mean()
+                                objective.patch_mask(batch["meta"], info.device), settings.weights)  # fmt: skip
+        loss = weighted_sum(terms, settings.weights).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

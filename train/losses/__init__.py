@@ -14,10 +14,11 @@ from train.losses.collision import (
     unconnected_pairs,
 )
 from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
-from train.losses.total import total_loss
+from train.losses.total import TERMS, loss_terms, total_loss, weighted_sum
 from train.losses.weights import LossWeights
 
 __all__ = [
+    "TERMS",
     "CollisionPairs",
     "LossWeights",
     "Matches",
@@ -25,6 +26,7 @@ __all__ = [
     "collision_loss",
     "collision_pairs",
     "flatness_loss",
+    "loss_terms",
     "match_points",
     "normal_alignment_loss",
     "point_triangle_sqdist",
@@ -32,4 +34,5 @@ __all__ = [
     "template_normal_loss",
     "total_loss",
     "unconnected_pairs",
+    "weighted_sum",
 ]

@@ -11,7 +11,32 @@ from train.losses.regularizers import flatness_loss, symmetry_loss, template_nor
 from train.losses.weights import LossWeights
 
 
+TERMS = ("chamfer", "normal", "flat", "collision", "template_normal", "symmetry")
+
+
+def weighted_sum(terms: dict[str, Tensor], weights: LossWeights) -> Tensor:
+    """Σ weight × term, per batch item (the terms are ``(B,)``)."""
+    return sum(getattr(weights, name) * terms[name] for name in TERMS)
+
+
 def total_loss(
+    patches: Tensor,
+    st: Tensor,
+    target_points: Tensor,
+    target_normals: Tensor,
+    weights: LossWeights = LossWeights(),
+    **inputs,
+) -> tuple[Tensor, dict[str, Tensor]]:
+    """Weighted sum L = L_Ch + α_n L_normal + α_flat L_flat + α_coll L_coll + α_T L_template + α_sym L_sym.
+
+    Takes the arguments of :func:`loss_terms`. Returns the batch mean and a dict of unweighted
+    per-term batch means (tensors; the total keeps its graph).
+    """
+    terms = loss_terms(patches, st, target_points, target_normals, weights, **inputs)
+    return weighted_sum(terms, weights).mean(), {name: value.mean() for name, value in terms.items()}
+
+
+def loss_terms(
     patches: Tensor,
     st: Tensor,
     target_points: Tensor,
@@ -24,16 +49,15 @@ def total_loss(
     symmetry_pairs: Tensor | None = None,
     plane_x: float = 0.0,
     collision: CollisionPairs | None = None,
-) -> tuple[Tensor, dict[str, Tensor]]:
-    """Weighted sum L = L_Ch + α_n L_normal + α_flat L_flat + α_coll L_coll + α_T L_template + α_sym L_sym.
+) -> dict[str, Tensor]:
+    """Each unweighted term of the paper's loss per batch item ``(B,)``, keyed by ``TERMS``.
 
     ``patches (B, P, 4, 4, 3)`` sampled at ``st (S, 2)`` or ``(P, S, 2)``; targets ``(B, M, 3)``.
     ``patch_mask (B, P)`` bool drops patches (absent optional parts) from every term but symmetry
     (which acts on control points). ``template_normals`` are the template's normals at the same ``st``;
     ``control_points (B, N, 3)`` + ``symmetry_pairs (K, 2)`` feed the symmetry term;
     ``collision`` pairs feed the collision term. A term whose weight is 0 or whose inputs are
-    missing is skipped (reported as 0). Returns the batch mean and a dict of unweighted
-    per-term batch means (tensors; the total keeps its graph).
+    missing is skipped (reported as 0), which is how ablations save time.
     """
     bsz = patches.shape[0]
     zero = patches.new_zeros(bsz)
@@ -60,5 +84,4 @@ def total_loss(
         if weights.symmetry and control_points is not None and symmetry_pairs is not None
         else zero
     )
-    total = sum(getattr(weights, name) * value for name, value in terms.items())
-    return total.mean(), {name: value.mean() for name, value in terms.items()}
+    return terms
