@@ -4,7 +4,8 @@ A shader factory appended to ``parameter_editor.callbacks_modifiers_post`` adds,
 every lineset's shader list, a shader that only reads each stroke: its vertices (pixels, origin
 bottom-left, y up) and the nature of the feature edge under each vertex. Points are converted to
 the contract's (u right, v down, origin top-left) convention; stroke geometry is not changed, so
-the polylines overlay the rendered PNG exactly.
+the polylines overlay the rendered PNG exactly. Fragments that Freestyle split at tiny hidden
+pieces are chained back together afterwards (render.join; points are never moved).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ class StrokeRecorder:
 
     def __init__(self) -> None:
         self.image_height = 0
-        self.strokes: list[dict] = []
+        self.join_gap_px = 0.0
+        self._fragments: list[tuple[list[list[float]], list[str]]] = []
         self._installed = False
 
     def install(self) -> None:
@@ -33,9 +35,21 @@ class StrokeRecorder:
         parameter_editor.callbacks_modifiers_post.append(self._shaders)
         self._installed = True
 
-    def reset(self, image_height: int) -> None:
+    def reset(self, image_height: int, join_gap_px: float = 0.0) -> None:
         self.image_height = image_height
-        self.strokes = []
+        self.join_gap_px = join_gap_px
+        self._fragments = []
+
+    @property
+    def strokes(self) -> list[dict]:
+        """The strokes drawn since ``reset``, fragments joined (render.join), typed."""
+        import numpy as np
+
+        from render.join import join_fragments
+
+        frags = [(np.asarray(p, float), t) for p, t in self._fragments]
+        return [_stroke_entry([[round(float(x), 4), round(float(y), 4)] for x, y in p], t)
+                for p, t in join_fragments(frags, self.join_gap_px)]
 
     def _shaders(self, scene: Any, layer: Any, lineset: Any) -> list:
         from freestyle.types import StrokeShader
@@ -62,19 +76,21 @@ class StrokeRecorder:
             p = sv.point
             points.append([round(float(p[0]), 4), round(float(H - p[1]), 4)])
             fedge = sv.fedge
-            if fedge is not None:
-                nat = fedge.nature
-                seg_types.append(next((name for bit, name in natures if nat & bit), "other"))
+            # one type per vertex (kept aligned with the points so joined fragments stay typed)
+            nat = fedge.nature if fedge is not None else None
+            seg_types.append("" if nat is None else
+                             next((name for bit, name in natures if nat & bit), "other"))
         if len(points) < 2:
             return
-        self.strokes.append(_stroke_entry(points, seg_types))
+        self._fragments.append((points, seg_types))
 
 
 def _stroke_entry(points: list[list[float]], seg_types: list[str]) -> dict:
     """Type a stroke by the nature under most of its vertices (ties: the _TYPE_ORDER order)."""
     counts: dict[str, int] = {}
     for t in seg_types:
-        counts[t] = counts.get(t, 0) + 1
+        if t:  # "" marks a vertex without a feature edge under it
+            counts[t] = counts.get(t, 0) + 1
     if counts:
         rank = {t: i for i, t in enumerate(_TYPE_ORDER)}
         main = max(counts, key=lambda t: (counts[t], -rank.get(t, len(rank))))

@@ -28,6 +28,7 @@ class RenderSettings:
     smooth_shading: bool = True    # smooth silhouettes on curved parts; edges at creases stay sharp
     line_thickness: float = 1.5    # pixels
     min_stroke_px: float = 0.0     # drop strokes shorter than this; >0 also opens gaps in noisy outlines
+    join_gap_px: float = 1.0       # join captured stroke fragments whose ends are this close (0: raw)
     samples: int = 1               # Cycles samples; lines are anti-aliased by Freestyle itself
     threads: int = 1               # Cycles render threads and the size of Blender's TBB pool (0: all CPUs)
     timeout_s: float = 60.0        # per model; a batch gets startup_timeout_s + n * timeout_s

@@ -99,7 +99,7 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
     for i, view in enumerate(views):
         t, c = time.perf_counter(), time.process_time()
         sc.set_camera(scene, view)
-        recorder.reset(settings.image_size)
+        recorder.reset(settings.image_size, settings.join_gap_px)
         tmp_png = scratch / f"{category}_{model_id}_{i:02d}.png"
         sc.render_png(scene, tmp_png)
         with Image.open(tmp_png) as im:

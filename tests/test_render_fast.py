@@ -74,6 +74,8 @@ def test_records_and_broken_mesh_named(rendered):
     for mid in rendered["meshes"]:
         assert recs[mid]["status"] == "ok"
         assert recs[mid]["n_views"] == 2
+    # one Blender process for the whole batch: start-up reported exactly once
+    assert sum("blender ready" in m for _, _, m in rendered["calls"]) == 1
     # progress reached the total, one message per model
     assert rendered["calls"][-1][0] == rendered["calls"][-1][1] == len(rendered["items"])
 

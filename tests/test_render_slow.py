@@ -71,3 +71,25 @@ def test_orthographic_front_side_top(prepared, tmp_path):
     recs = render_batch("car", cat_items, tmp_path, s, seed=0)
     assert recs[0]["status"] == "ok"
     check_model(tmp_path / "car" / cat_items[0][0], cat_items[0][1], 3, 256)
+
+
+def test_fragment_joining_only_chains_captured_points(prepared, tmp_path):
+    # the airplane's thin wings make Freestyle split outlines into many tiny fragments
+    work, items = prepared
+    cat_items = items["airplane"]
+    raw_s = RenderSettings(views=2, join_gap_px=0.0)
+    joined_s = RenderSettings(views=2)
+    render_batch("airplane", cat_items, tmp_path / "raw", raw_s, seed=0)
+    render_batch("airplane", cat_items, tmp_path / "joined", joined_s, seed=0)
+    mid = cat_items[0][0]
+    raw = read_json(tmp_path / "raw" / "airplane" / mid / "strokes.json")["views"]
+    joined = read_json(tmp_path / "joined" / "airplane" / mid / "strokes.json")["views"]
+    for i in range(2):
+        # same drawing: joining is a capture-side step only
+        a = np.asarray(Image.open(tmp_path / "raw" / "airplane" / mid / f"view_{i:02d}.png"))
+        b = np.asarray(Image.open(tmp_path / "joined" / "airplane" / mid / f"view_{i:02d}.png"))
+        assert np.array_equal(a, b)
+        assert len(joined[i]) < 0.8 * len(raw[i]), (len(joined[i]), len(raw[i]))
+        # every joined point is a captured point (nothing moved or invented)
+        raw_pts = {tuple(p) for s in raw[i] for p in s["points"]}
+        assert {tuple(p) for s in joined[i] for p in s["points"]} <= raw_pts
