@@ -66,3 +66,15 @@ def test_loss_decreases_over_training(shards, tmp_path):
     rows = list(csv.DictReader(open(out / "log.csv")))
     first, last = float(rows[0]["chamfer"]), float(rows[-1]["chamfer"])
     assert last < 0.8 * first
+
+
+def test_validation_keeps_the_best_checkpoint(shards, tmp_path):
+    torch.set_num_threads(1)
+    out = tmp_path / "val"
+    fit(settings(shards, out, 4, val_every=2, lr=1e-3), progress=False)
+    rows = list(csv.DictReader(open(out / "log.csv")))
+    vals = {int(r["step"]): float(r["val_chamfer"]) for r in rows if r["val_chamfer"]}
+    assert sorted(vals) == [2, 4] and all(v > 0 for v in vals.values())
+    best = load_checkpoint(out / "best.pt")
+    assert best["val_chamfer"] == pytest.approx(min(vals.values()))
+    assert best["step"] == min(vals, key=vals.get)

@@ -27,6 +27,7 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-size", type=int, default=128)
     p.add_argument("--checkpoint-every", type=int, default=500)
     p.add_argument("--log-every", type=int, default=10)
+    p.add_argument("--val-every", type=int, default=0, help="validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
     p.add_argument("--device", default=None, help="default: cuda when present, else cpu")
     for f in dataclasses.fields(LossWeights):
         p.add_argument(f"--w-{f.name.replace('_', '-')}", type=float, default=f.default, help=f"loss weight (paper: {f.default})")
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             dataset=a.dataset, category=a.category, template=a.template, out=a.out, steps=a.steps,
             batch_size=a.batch_size, lr=a.lr, seed=a.seed, workers=a.workers, max_views=a.max_views,
             n_points=a.points, image_size=a.image_size, checkpoint_every=a.checkpoint_every,
-            log_every=a.log_every, device=a.device, weights=_weights(a),
+            log_every=a.log_every, val_every=a.val_every, device=a.device, weights=_weights(a),
         )  # fmt: skip
         print(json.dumps(fit(s, progress=not a.no_progress)))
     elif a.cmd == "evaluate":

@@ -4,7 +4,8 @@ Run directory layout::
 
     <out>/config.json       settings of the run (a resume must match them)
     <out>/checkpoint.pt     model + optimizer + step (rank 0, atomic)
-    <out>/log.csv           step, total and per-term losses, seconds
+    <out>/best.pt           the checkpoint with the lowest validation Chamfer so far (``val_every``)
+    <out>/log.csv           step, total and per-term losses, validation Chamfer, seconds
     <out>/tb/               TensorBoard scalars
     <out>/loss.png          loss curves
 """
@@ -33,7 +34,7 @@ from train.model import SketchToPatches
 from train.objective import Objective
 from train.templates import Template, load_template
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("seconds",)
+CSV_FIELDS = ("step", "loss") + TERMS + ("val_chamfer", "seconds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,22 +53,27 @@ class FitSettings:
     image_size: int = 128
     checkpoint_every: int = 500
     log_every: int = 10
+    val_every: int = 0  # 0: no validation; else L_Ch on the val split every N steps, best.pt kept
     device: str | None = None
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
         d = dataclasses.asdict(self)
-        for k in ("steps", "checkpoint_every", "log_every", "device", "workers", "out"):
+        for k in ("steps", "checkpoint_every", "log_every", "val_every", "device", "workers", "out"):
             d.pop(k)
         return d
 
 
-def save_checkpoint(path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings) -> None:
+def save_checkpoint(
+    path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
+    val_chamfer: float | None = None,
+) -> None:
     with atomic_path(path) as tmp:
         torch.save(
             {
                 "step": step,
+                "val_chamfer": val_chamfer,
                 "model": model.state_dict(),
                 "optimizer": optimizer.state_dict(),
                 "settings": dataclasses.asdict(settings),
@@ -86,6 +92,32 @@ def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
     model = SketchToPatches(template.initial_params())
     model.load_state_dict(ckpt["model"])
     return model.eval()
+
+
+@torch.no_grad()
+def validation_chamfer(model: SketchToPatches, loader, objective: Objective, device: torch.device) -> float:
+    """Mean L_Ch over a split (one view, fixed sample grid): the number model selection uses."""
+    was_training = model.training
+    model.eval()
+    total, count = 0.0, 0
+    weights = LossWeights(normal=0.0, flat=0.0, collision=0.0, template_normal=0.0, symmetry=0.0)
+    st = objective.sample_st(None)
+    for batch in loader:
+        params = model(batch["images"].to(device), batch["view_mask"].to(device))
+        terms = objective.terms(params, batch["points"].to(device), st, objective.patch_mask(batch["meta"], device), weights)
+        total += float(terms["chamfer"].sum())
+        count += params.shape[0]
+    model.train(was_training)
+    return total / max(count, 1)
+
+
+def _best_so_far(out: Path, start: int) -> float:
+    """Validation Chamfer of best.pt when resuming a run (inf when there is none yet)."""
+    path = out / "best.pt"
+    if not start or not path.exists():
+        return float("inf")
+    value = torch.load(path, map_location="cpu", weights_only=False).get("val_chamfer")
+    return float("inf") if value is None else float(value)
 
 
 def _read_log(path: Path, upto: int) -> list[dict]:
@@ -130,6 +162,11 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         settings.batch_size, settings.workers, True, info.rank, info.world, template.symmetry is not None,
     )  # fmt: skip
     logger = _Logger(out, start, info, settings) if info.is_main else None
+    val_loader = None
+    if settings.val_every and info.is_main:
+        val_data = DataSettings(eval_views=1, n_points=settings.n_points, image_size=settings.image_size)
+        val_loader = make_loader(settings.dataset, settings.category, "val", val_data, 0, settings.batch_size, train=False)
+    best = _best_so_far(out, start)
     bar = None
     if progress and info.is_main and start < settings.steps:
         from tqdm import tqdm
@@ -151,11 +188,17 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         loss.backward()
         optimizer.step()
         done = step + 1
-        if done % settings.log_every == 0 or done == settings.steps:
+        val = None
+        if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
+            val = validation_chamfer(model, val_loader, objective, info.device)
+            if val < best:
+                best = val
+                save_checkpoint(out / "best.pt", model, optimizer, done, settings, val_chamfer=val)
+        if done % settings.log_every == 0 or done == settings.steps or val is not None:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
-                logger.log(done, last, row, time.perf_counter() - t0)
+                logger.log(done, last, {**row, "val_chamfer": "" if val is None else val}, time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
             save_checkpoint(ckpt_path, model, optimizer, done, settings)
         if bar:
@@ -200,12 +243,13 @@ class _Logger:
         self.tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
         self.out = out
 
-    def log(self, step: int, loss: float, terms: dict[str, float], seconds: float) -> None:
+    def log(self, step: int, loss: float, terms: dict[str, float | str], seconds: float) -> None:
         self.writer.writerow({"step": step, "loss": loss, **terms, "seconds": round(seconds, 3)})
         self.file.flush()
         self.tb.add_scalar("loss/total", loss, step)
         for k, v in terms.items():
-            self.tb.add_scalar(f"loss/{k}", v, step)
+            if v != "":  # validation runs only every val_every steps
+                self.tb.add_scalar(f"val/{k}" if k.startswith("val_") else f"loss/{k}", v, step)
 
     def close(self) -> None:
         from train.plots import plot_losses

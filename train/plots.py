@@ -14,17 +14,22 @@ from pipeline.atomic import atomic_path  # noqa: E402
 
 
 def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
-    """One panel per logged term (log scale), step on x."""
+    """One panel per logged term (log scale), step on x; the validation Chamfer, logged every
+    ``val_every`` steps, is drawn over the training Chamfer."""
     with open(csv_path) as f:
         rows = list(csv.DictReader(f))
     if not rows:
         return
-    keys = [k for k in rows[0] if k not in ("step", "seconds")]
+    keys = [k for k in rows[0] if k not in ("step", "seconds", "val_chamfer")]
     steps = [int(r["step"]) for r in rows]
+    val = [(int(r["step"]), float(r["val_chamfer"])) for r in rows if r.get("val_chamfer")]
     fig, axes = plt.subplots(1, len(keys), figsize=(3 * len(keys), 2.6), squeeze=False)
     for ax, k in zip(axes[0], keys):
         vals = [float(r[k]) for r in rows]
-        ax.plot(steps, vals, lw=1)
+        ax.plot(steps, vals, lw=1, label="train")
+        if k == "chamfer" and val:
+            ax.plot(*zip(*val), lw=1.2, marker=".", label="val")
+            ax.legend(fontsize=7)
         if all(v > 0 for v in vals):
             ax.set_yscale("log")
         ax.set_title(k, fontsize=9)
