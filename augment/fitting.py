@@ -56,11 +56,23 @@ def simplify(points: np.ndarray, epsilon: float, closed: bool = False) -> np.nda
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 3 or epsilon <= 0:
         return points.copy()
+    if not closed and np.abs(points[0] - points[-1]).max() < 1e-6:
+        # A loop stored open (last point = first): approxPolyDP drops the repeated end point, so
+        # split at the vertex farthest from the seam and simplify the two halves as open chains.
+        k = int(np.argmax(np.hypot(*(points - points[0]).T)))
+        if k == 0:
+            return points[:1].copy()
+        return np.concatenate([simplify(points[:k + 1], epsilon), simplify(points[k:], epsilon)[1:]])
     approx = cv2.approxPolyDP(points.astype(np.float32).reshape(-1, 1, 2), float(epsilon), closed)
     out = approx.reshape(-1, 2).astype(np.float64)
     if not closed:
-        # approxPolyDP keeps the first point; make the ends exact (float32 round trip).
-        out[0], out[-1] = points[0], points[-1]
+        # approxPolyDP keeps the first point; make the ends exact (float32 round trip), appending
+        # the last one should it ever be left out rather than overwriting a kept corner.
+        out[0] = points[0]
+        if np.abs(out[-1] - points[-1]).max() < 1e-3:
+            out[-1] = points[-1]
+        else:
+            out = np.concatenate([out, points[-1:]])
     return out
 
 

@@ -17,6 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -74,16 +76,18 @@ def main() -> int:
     settings = {128: AugmentSettings(variants=args.variants),
                 512: AugmentSettings(variants=args.variants, out_size=512)}
     t_vec, t_ref, t_aug, t_ras, f1s = [], [], [], {128: [], 512: []}, []
+    by_cat: dict[str, list[dict]] = {}
     for rep in range(args.repeats):
         for folder, v, path in views:
             gray = load_gray(path)
             strokes, ms = timed(vectorize, gray)
             t_vec.append(ms)
             if rep == 0 and (folder / "strokes.json").exists():
-                cap = read_json(folder / "strokes.json")["views"][v]
-                import numpy as np
-                f1s.append(stroke_scores(strokes, [np.asarray(s["points"]) for s in cap],
-                                         gray.shape[0])["f1"])
+                cap = [np.asarray(s["points"]) for s in read_json(folder / "strokes.json")["views"][v]]
+                q = stroke_scores(strokes, cap, gray.shape[0])
+                q["f1_tol1"] = stroke_scores(strokes, cap, gray.shape[0], tol=1.0)["f1"]
+                f1s.append(q["f1"])
+                by_cat.setdefault(folder.parent.name, []).append(q)
             ref, ms = timed(reference_strokes, strokes, gray.shape[0], settings[128])
             t_ref.append(ms)
             for k in range(args.variants):
@@ -107,6 +111,12 @@ def main() -> int:
     print(f"total per 128² variant (view work shared by {args.variants}): {per_variant:.2f} ms")
     if f1s:
         print(f"vectorization F1 vs captured strokes (2 px): median {med(f1s):.3f}, min {min(f1s):.3f}")
+        print("category     views  meanF1(2px)  minF1(2px)  meanF1(1px)  minPrecision  median count ratio")
+        for cat, qs in sorted(by_cat.items()):
+            f = [q["f1"] for q in qs]
+            print(f"{cat:12s} {len(qs):5d}  {np.mean(f):11.3f}  {min(f):10.3f}  "
+                  f"{np.mean([q['f1_tol1'] for q in qs]):11.3f}  {min(q['precision'] for q in qs):12.3f}  "
+                  f"{med([q['count_ratio'] for q in qs]):18.2f}")
     if tmp is not None:
         tmp.cleanup()
     return 0

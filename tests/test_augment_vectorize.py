@@ -149,3 +149,13 @@ def test_fitting_helpers():
     assert len(r) == 31 and np.allclose(np.linalg.norm(np.diff(r, axis=0), axis=1), 1.0)
     line = np.stack([np.linspace(0, 10, 50), np.zeros(50)], 1)
     assert len(simplify(line, 0.1)) == 2
+
+
+def test_simplify_keeps_every_corner_of_a_loop_stored_open():
+    # A closed outline stored with last point = first: all four corners must survive (cv2's
+    # approxPolyDP drops the repeated end point, which once cost a box one of its sides).
+    sq = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [0.0, 0.0]])
+    dense = np.concatenate([np.linspace(sq[i], sq[i + 1], 11)[:-1] for i in range(4)] + [sq[:1]])
+    assert np.array_equal(simplify(dense, 0.4), sq)
+    box = vectorize(draw([sq * 10 + 60]))
+    assert len(box) == 1 and len(box[0]) == 5
