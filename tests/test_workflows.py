@@ -61,7 +61,6 @@ def test_build_settings_keys_chain() -> None:
         BuildSettings(augment_overrides='{"nope": 1}').augment_settings()
 
 
-@pytest.mark.slow  # shares a ~1 min Blender build
 def test_shards_read_back_with_every_member(built: Path) -> None:
     ds = built / "ds"
     m = read_manifest(ds)
@@ -96,7 +95,6 @@ def test_shards_read_back_with_every_member(built: Path) -> None:
             assert len(s["cameras.json"]["views"]) == 2 and len(s["strokes.json"]["views"]) == 2
 
 
-@pytest.mark.slow  # shares a ~1 min Blender build
 def test_rebuild_elsewhere_is_byte_identical(built: Path, tmp_path: Path) -> None:
     assert build(tmp_path)
     for cat in ("knife", "mug"):
@@ -106,7 +104,6 @@ def test_rebuild_elsewhere_is_byte_identical(built: Path, tmp_path: Path) -> Non
     assert read_manifest(built / "ds")["checksum"] == read_manifest(tmp_path / "ds")["checksum"]
 
 
-@pytest.mark.slow  # shares a ~1 min Blender build
 def test_regenerate_one_category_after_pencil_change(built: Path) -> None:
     ds, work = built / "ds", built / "work"
     knife_before, mug_before = shard_state(ds, "knife"), shard_state(ds, "mug")
@@ -130,7 +127,6 @@ def test_regenerate_one_category_after_pencil_change(built: Path) -> None:
     assert len(read_manifest(ds)["settings"]) == 1
 
 
-@pytest.mark.slow  # shares a ~1 min Blender build
 def test_split_assignment_stable_when_models_added(built: Path, tmp_path: Path) -> None:
     def splits(ds: Path) -> dict[str, str]:
         out = {}

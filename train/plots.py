@@ -23,8 +23,12 @@ def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
     keys = [k for k in rows[0] if k not in ("step", "seconds", "val_chamfer")]
     steps = [int(r["step"]) for r in rows]
     val = [(int(r["step"]), float(r["val_chamfer"])) for r in rows if r.get("val_chamfer")]
-    fig, axes = plt.subplots(1, len(keys), figsize=(3 * len(keys), 2.6), squeeze=False)
-    for ax, k in zip(axes[0], keys):
+    cols = min(4, len(keys))
+    rows_n = -(-len(keys) // cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(3.2 * cols, 2.6 * rows_n), squeeze=False)
+    for ax in axes.flat[len(keys):]:
+        ax.axis("off")
+    for ax, k in zip(axes.flat, keys):
         vals = [float(r[k]) for r in rows]
         ax.plot(steps, vals, lw=1, label="train")
         if k == "chamfer" and val:

@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
                         views=a.views, variants=a.variants, image_size=a.image_size, out_size=a.out_size,
                         seed=a.seed, batch_size=a.batch_size, work_dir=a.work_dir, dataset_dir=a.dataset_dir)
     t0 = time.perf_counter()
-    ok = luigi.build([task], local_scheduler=True, workers=a.workers)
+    ok = luigi.build([task], local_scheduler=True, workers=a.workers, log_level="INFO")
     elapsed = time.perf_counter() - t0
     if not ok or not (Path(a.dataset_dir) / "manifest.json").exists():
         print(f"dataset build FAILED after {elapsed:.0f} s (see the Luigi log above)", file=sys.stderr)
