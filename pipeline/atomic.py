@@ -1,15 +1,71 @@
-"""Atomic writes: a file either exists whole or not at all (temp file in the same folder + rename)."""
+"""Atomic writes: a file either exists whole or not at all (temp file in the same folder + rename).
+
+Storage errors (disk full, permission denied, read-only filesystem) are re-raised as
+StorageError naming the file and the problem in words, so a build log says what to fix.
+``SKETCH_FAULT_KILL_AT`` is a test hook for kill/restart tests; see ``_fault_point``.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fnmatch
+import io
 import json
 import os
+import signal
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+
+
+# errno → what the user should read (and do) when a write fails
+_STORAGE_PROBLEMS = {
+    errno.ENOSPC: "disk full (no space left on device); free space or point --work-dir/--dataset-dir elsewhere",
+    errno.EDQUOT: "disk quota exceeded; free space or raise the quota",
+    errno.EACCES: "permission denied; make the folder writable by this user",
+    errno.EPERM: "permission denied (operation not permitted); make the folder writable by this user",
+    errno.EROFS: "read-only filesystem; point --work-dir/--dataset-dir at writable storage",
+}
+
+
+class StorageError(OSError):
+    """An output file could not be written; ``str()`` names the file and the problem."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def storage_error(path: str | Path, exc: OSError) -> OSError:
+    """``exc`` translated into a StorageError naming ``path`` if it is a storage problem, else ``exc``."""
+    problem = _STORAGE_PROBLEMS.get(exc.errno) if exc.errno is not None else None
+    if problem is None or isinstance(exc, StorageError):
+        return exc
+    err = StorageError(exc.errno, f"cannot write {path}: {problem}")
+    err.filename = str(path)
+    return err
+
+
+_fault_counts: dict[str, int] = {}
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
+def _fault_point(path: Path) -> None:
+    """Test hook: ``SKETCH_FAULT_KILL_AT="<glob>:<n>"`` SIGKILLs this process group just before
+    the n-th atomic rename (in this process) of a path matching the glob, leaving the temp file
+    behind exactly as a power cut or ``kill -9`` would. Unset in normal runs: costs one lookup."""
+    spec = os.environ.get("SKETCH_FAULT_KILL_AT")
+    if not spec:
+        return
+    pattern, _, nth = spec.rpartition(":")
+    if not fnmatch.fnmatch(str(path), pattern):
+        return
+    _fault_counts[spec] = _fault_counts.get(spec, 0) + 1
+    if _fault_counts[spec] == int(nth):
+        os.killpg(os.getpgid(0), signal.SIGKILL)
 
 
 @contextlib.contextmanager
@@ -20,17 +76,26 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     the extension (trimesh, cv2) still work.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     suf = suffix if suffix is not None else "".join(path.suffixes)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suf}", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suf}", dir=path.parent)
+    except OSError as exc:
+        raise storage_error(path, exc) from exc
     os.close(fd)
     tmp_path = Path(tmp)
+    # mkstemp creates mode 0600; give the file the usual umask mode so other users / machines
+    # sharing the storage can read what this worker wrote
+    os.chmod(tmp_path, 0o666 & ~_UMASK)
     try:
         yield tmp_path
+        _fault_point(path)
         os.replace(tmp_path, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             tmp_path.unlink()
+        if isinstance(exc, OSError):
+            raise storage_error(path, exc) from exc
         raise
 
 
@@ -57,8 +122,10 @@ def read_json(path: str | Path) -> Any:
 
 
 def write_npy(path: str | Path, array: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        np.save(tmp, array, allow_pickle=False)
+    # serialized in memory: np.save onto a full disk raises an OSError without errno
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)
+    write_bytes(path, buf.getvalue())
 
 
 def _json_default(o: Any) -> Any:

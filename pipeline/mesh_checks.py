@@ -20,6 +20,10 @@ def check_input(
     """Raise ModelError if a loaded mesh is empty, non-finite, huge or has zero area."""
     if len(faces) == 0 or len(vertices) == 0:
         raise ModelError(path, "empty mesh: no faces")
+    if len(faces) < 4:
+        # fewer faces than a tetrahedron can't bound a solid: nothing for watertighting to recover
+        what = "a single face" if len(faces) == 1 else f"only {len(faces)} faces"
+        raise ModelError(path, f"degenerate mesh: {what}; a closed surface needs at least 4")
     if len(faces) > max_faces:
         raise ModelError(path, f"huge mesh: {len(faces)} faces > max_input_faces {max_faces}")
     if not np.isfinite(vertices).all():

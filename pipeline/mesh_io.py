@@ -8,6 +8,9 @@ ModelError naming the file, so a batch can record it and move on.
 from __future__ import annotations
 
 import hashlib
+import os
+import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +20,19 @@ from pipeline.atomic import write_bytes
 from pipeline.errors import ModelError
 
 MESH_EXTENSIONS = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
+HEAD_BYTES = 4096
+_DENIED = "permission denied (check the owner and mode of the file and its folders)"
+
+# Signatures of common files that are not meshes, so the error can say what the file is.
+_NOT_MESH_MAGIC = {
+    b"\x89PNG": "a PNG image", b"\xff\xd8\xff": "a JPEG image", b"%PDF": "a PDF document",
+    b"PK\x03\x04": "a ZIP archive", b"\x1f\x8b": "a gzip archive", b"\x7fELF": "an executable",
+    b"GIF8": "a GIF image",
+}
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2,
+              "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4,
+              "double": 8, "float64": 8}
+_OBJ_LINE = re.compile(rb"^[ \t]*(v|vn|vt|f|o|g|mtllib|usemtl)[ \t]", re.M)
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -28,25 +44,119 @@ def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def _file_kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def sniff_format(head: bytes, size: int) -> str | None:
+    """The mesh format (as an extension) the file's first bytes show, or None if none."""
+    if head.startswith(b"ply"):
+        return ".ply"
+    if head.startswith(b"glTF"):
+        return ".glb"
+    if head.split(None, 1)[:1] in ([b"OFF"], [b"COFF"], [b"NOFF"]):
+        return ".off"
+    if head.lstrip().lower().startswith(b"solid") and b"facet" in head.lower():
+        return ".stl"
+    if size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size:
+        return ".stl"  # binary STL: the size matches the triangle count exactly
+    if b"\0" not in head and _OBJ_LINE.search(head):
+        return ".obj"
+    return None
+
+
+def _ply_min_bytes(header: str) -> int:
+    """Fewest body bytes a binary PLY with this header can have (faces: 3 indices each)."""
+    total, element, count = 0, None, 0
+    for line in header.splitlines():
+        words = line.split()
+        if words[:1] == ["element"] and len(words) >= 3:
+            element, count = words[1], int(words[2])
+        elif words[:1] == ["property"] and element is not None:
+            if len(words) >= 5 and words[1] == "list":
+                per = _PLY_SIZES.get(words[2], 1) + (3 * _PLY_SIZES.get(words[3], 4) if element == "face" else 0)
+            else:
+                per = _PLY_SIZES.get(words[1], 4)
+            total += count * per
+    return total
+
+
+def check_container(path: Path, head: bytes, size: int) -> None:
+    """Raise ModelError if the bytes are not a mesh, are a mesh of another format than the
+    extension says, or are shorter than their own header declares (a truncated file)."""
+    ext = path.suffix.lower()
+    for magic, what in _NOT_MESH_MAGIC.items():
+        if head.startswith(magic):
+            raise ModelError(path, f"not a mesh: the file is {what}")
+    found = sniff_format(head, size)
+    family = ".glb" if ext == ".gltf" and found == ".glb" else ext
+    if found is not None and found != family and ext != ".gltf":
+        raise ModelError(path, f"wrong extension: named {ext} but the content is {found[1:].upper()} data")
+    if found is None and ext != ".obj" and not (ext == ".stl" and not head.lstrip().lower().startswith(b"solid")):
+        kind = "text" if b"\0" not in head else "binary data"
+        raise ModelError(path, f"not a mesh: {kind} in no {ext[1:].upper()} layout")
+    if ext == ".stl" and not head.lstrip().lower().startswith(b"solid"):
+        n = int.from_bytes(head[80:84], "little") if size >= 84 else 0
+        if size < 84 or size < 84 + 50 * n:
+            raise ModelError(path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) "
+                                   f"but the file has {size} bytes")
+    if found == ".ply":
+        end = head.find(b"end_header")
+        if end < 0:
+            raise ModelError(path, "truncated: PLY header has no end_header")
+        header = head[:end].decode("ascii", "replace")
+        body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
+        if "binary" in header and size - body_start < _ply_min_bytes(header):
+            raise ModelError(path, f"truncated: PLY header declares at least {_ply_min_bytes(header)} bytes "
+                                   f"of data but the file has {size - body_start}")
+    if found == ".glb" and size >= 12 and size < int.from_bytes(head[8:12], "little"):
+        raise ModelError(path, f"truncated: GLB header declares {int.from_bytes(head[8:12], 'little')} bytes "
+                               f"but the file has {size}")
+
+
 def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n,3) float64 and triangle faces (m,3) int64 of a mesh file.
 
-    Raises ModelError for a missing, oversized or unparsable file, or one without triangles.
+    Raises ModelError for a missing, unreadable, oversized, truncated or unparsable file, one
+    whose content is not a mesh or not the format its extension says, or one without triangles.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(path, "unreadable: file not found")
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ModelError(path, "unreadable: file not found") from None
+    except PermissionError:
+        raise ModelError(path, f"unreadable: {_DENIED} on a folder above it") from None
+    except OSError as exc:
+        raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ModelError(path, f"unreadable: not a regular file but {_file_kind(st.st_mode)}")
     if path.suffix.lower() not in MESH_EXTENSIONS:
         raise ModelError(path, f"unreadable: unsupported extension {path.suffix!r}")
-    size = path.stat().st_size
+    size = st.st_size
     if size == 0:
         raise ModelError(path, "empty mesh: file has 0 bytes")
     if max_bytes is not None and size > max_bytes:
         raise ModelError(path, f"huge mesh: file is {size} bytes > max_input_bytes {max_bytes}")
     try:
+        with open(path, "rb") as f:
+            head = f.read(HEAD_BYTES)
+    except PermissionError:
+        raise ModelError(path, f"unreadable: {_DENIED}") from None
+    except OSError as exc:
+        raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
+    check_container(path, head, size)
+    try:
         # force="mesh" flattens scenes (GLB, multi-object OBJ) applying node transforms;
         # process=False keeps the file's vertices untouched (watertighting repairs them anyway).
         loaded = trimesh.load(str(path), force="mesh", process=False)
+    except IndexError as exc:  # OBJ faces naming vertices the file doesn't have
+        raise ModelError(path, f"unreadable: face indices out of range (truncated or corrupt file?): {exc}") from exc
     except Exception as exc:  # parsers raise anything from ValueError to struct.error
         raise ModelError(path, f"unreadable: {type(exc).__name__}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh):
@@ -59,7 +169,7 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
     if faces.shape[1] != 3:
         raise ModelError(path, f"unreadable: faces have {faces.shape[1]} corners, expected 3")
     if faces.min() < 0 or faces.max() >= len(vertices):
-        raise ModelError(path, "unreadable: face indices out of range")
+        raise ModelError(path, "unreadable: face indices out of range (truncated or corrupt file?)")
     return vertices, faces
 
 

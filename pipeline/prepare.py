@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.atomic import write_npy
+from pipeline.atomic import StorageError, write_npy
 from pipeline.errors import ModelError
 from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
 from pipeline.mesh_checks import check_input, closed_surface_problems
@@ -177,6 +177,8 @@ def prepare_batch(
             except ModelError as err:
                 rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,
                                    source={"kind": ref.source, "path": str(ref.path)})
+            except StorageError:
+                raise  # disk full / not writable is the machine's fault, not the model's: fail the batch
             except Exception as exc:  # an unexpected bug on one model must not sink the batch
                 err = ModelError(ref.path, f"{type(exc).__name__}: {exc}")
                 rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,

@@ -91,13 +91,17 @@ def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
 
 
 def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
-    """Mesh files directly in ``<root>/<category>/``, id = file stem (full name if stems clash)."""
+    """Mesh files directly in ``<root>/<category>/``, id = file stem (full name if stems clash).
+
+    Every entry named like a mesh is listed, even one that is not a readable file (a directory,
+    a FIFO, a broken link): prepare then records why it can't be read instead of skipping it.
+    """
     folder = root / category
     if not folder.is_dir():
         return
     files = [
         e for e in _sorted_entries(folder)
-        if e.is_file() and not e.name.startswith(".") and Path(e.name).suffix.lower() in MESH_EXTENSIONS
+        if not e.name.startswith(".") and Path(e.name).suffix.lower() in MESH_EXTENSIONS
     ]
     stems = [Path(e.name).stem for e in files]
     for entry, stem in zip(files, stems):

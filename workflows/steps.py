@@ -9,10 +9,14 @@ step sees every failure of the category with its reason.
 
 from __future__ import annotations
 
+import itertools
+import os
+import shutil
+import socket
 import time
 from pathlib import Path
 
-from pipeline.atomic import read_json, write_json
+from pipeline.atomic import read_json, storage_error, write_json
 from pipeline.build_settings import BuildSettings
 from pipeline.layout import ModelRef, Progress, model_dir
 from pipeline.manifest import category_fragment, read_fragment, write_fragment, write_manifest
@@ -20,6 +24,7 @@ from pipeline.shards import ModelDirs, write_category_shards
 
 BATCHES = "_batches"
 LISTS = "_lists"
+RUNS = "_runs"
 
 
 # ---------------------------------------------------------------- paths
@@ -40,6 +45,20 @@ def batch_path(s: BuildSettings, stage: str, category: str, batch: int) -> Path:
 def read_list(s: BuildSettings, category: str) -> list[ModelRef]:
     return [ModelRef(category, m["model_id"], Path(m["path"]), m["source"])
             for m in read_json(list_path(s, category))["models"]]
+
+
+def expected_models(s: BuildSettings, category: str) -> int:
+    """How many models the category's list holds (or will hold once written), without generating
+    or opening any mesh: the written list if there is one, else the procedural count, else the
+    directory listing (names only)."""
+    if list_path(s, category).exists():
+        return len(read_list(s, category))
+    from pipeline.sources import DEFAULT_PROCEDURAL_COUNT, iter_models
+
+    if s.is_procedural:
+        return s.limit if s.limit is not None else DEFAULT_PROCEDURAL_COUNT
+    names = iter_models(s.source, category)
+    return sum(1 for _ in (names if s.limit is None else itertools.islice(names, s.limit)))
 
 
 def n_batches(n_models: int, batch_size: int) -> int:
@@ -71,10 +90,10 @@ def _outcome(model_id: str, stage: str, rec: dict | None) -> dict:
 
 
 def _write_batch(s: BuildSettings, stage: str, category: str, batch: int, outcomes: list[dict],
-                 t0: float) -> dict:
+                 t0: float, **extra) -> dict:
     # wall seconds are kept in the work folder only (never in shards or manifest) for stage shares
     doc = {"stage": stage, "category": category, "batch": batch, "models": outcomes,
-           "seconds": round(time.perf_counter() - t0, 3)}
+           "seconds": round(time.perf_counter() - t0, 3), **extra}
     write_json(batch_path(s, stage, category, batch), doc)
     return doc
 
@@ -96,16 +115,35 @@ def prepare_step(s: BuildSettings, category: str, batch: int, progress: Progress
                         [_outcome(r.model_id, "prepare", rec) for r, rec in zip(refs, records)], t0)
 
 
-def render_step(s: BuildSettings, category: str, batch: int, progress: Progress = None) -> dict:
+def render_step(s: BuildSettings, category: str, batch: int, progress: Progress = None,
+                crash_retries: int = 1) -> dict:
+    """Render the batch's prepared models in one Blender process. If Blender crashes or hangs,
+    the batch is retried ``crash_retries`` times (finished models keep their records, so a retry
+    resumes); after that the models still unrendered are recorded failed with the cause."""
     t0 = time.perf_counter()
-    from render.batch import render_batch
+    from render.batch import RenderBatchError, render_batch
 
     ok, failed = _upstream(s, "prepare", category, batch)
     prep = s.stage_dir("prepare")
     items = [(mid, model_dir(prep, category, mid) / "mesh.ply") for mid in ok]
-    records = render_batch(category, items, s.stage_dir("render"), s.render_settings(), s.seed, progress) if items else []
+    records: list[dict] = []
+    attempts = 0
+    crashes: list[str] = []
+    while items:
+        attempts += 1
+        last = attempts > crash_retries
+        try:
+            records = render_batch(category, items, s.stage_dir("render"), s.render_settings(), s.seed,
+                                   progress, on_crash="record" if last else "raise")
+            break
+        except RenderBatchError as exc:
+            crashes.append(str(exc))
+            if progress is not None:
+                progress(0, len(items), f"render {category} batch {batch}: retry {attempts}/{crash_retries} after: {exc}"[:300])
     outcomes = failed + [_outcome(mid, "render", rec) for (mid, _), rec in zip(items, records)]
-    return _write_batch(s, "render", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0)
+    doc = _write_batch(s, "render", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
+                       attempts=attempts, crashes=crashes)
+    return doc
 
 
 def augment_step(s: BuildSettings, category: str, batch: int, progress: Progress = None) -> dict:
@@ -144,13 +182,41 @@ def shards_step(s: BuildSettings, category: str, progress: Progress = None) -> d
                                                s.category_settings_hash(), n, failed)
         write_fragment(Path(s.dataset_dir) / category, holder["fragment"])
 
-    result = write_category_shards(category, dirs, Path(s.dataset_dir) / category, s.shard_settings(),
-                                   s.seed, s.shards_key(), s.portable_path, before_cleanup=fragment)
+    cat_dir = Path(s.dataset_dir) / category
+    # A run killed while packing leaves its staging folder behind; only this task (one per
+    # category at a time, Luigi guarantees) writes here, so stale ones can go.
+    for stale in cat_dir.glob(".staging-*"):
+        shutil.rmtree(stale, ignore_errors=True)
+    try:
+        result = write_category_shards(category, dirs, cat_dir, s.shard_settings(),
+                                       s.seed, s.shards_key(), s.portable_path, before_cleanup=fragment)
+    except OSError as exc:  # tar writes bypass pipeline.atomic: name the folder and the problem
+        raise storage_error(cat_dir, exc) from exc
     write_json(s.stage_dir("shards") / category / "_timing.json", {"seconds": round(time.perf_counter() - t0, 3)})
     if progress is not None:
         progress(1, 1, f"shards {category}: {len(result.written)} shard(s) written, "
                        f"{len(result.removed)} removed")
     return holder["fragment"]
+
+
+def record_run(s: BuildSettings, task_id: str, event: str) -> Path:
+    """Note that this process started/finished ``task_id``: one file per (task, host, process)
+    under ``<work>/_runs/<task_id>/`` (separate files, not appends, so it is safe on NFS).
+    Lets a multi-worker build be audited: which worker ran which batch, and how often."""
+    path = Path(s.work_dir) / RUNS / task_id / f"{socket.gethostname()}-{os.getpid()}.json"
+    doc = read_json(path) if path.exists() else {"task": task_id, "host": socket.gethostname(),
+                                                  "pid": os.getpid(), "events": []}
+    doc["events"].append({"event": event, "time": round(time.time(), 3)})
+    write_json(path, doc)
+    return path
+
+
+def read_runs(work_dir: Path) -> dict[str, list[dict]]:
+    """Every recorded run under ``<work>/_runs``, by task id."""
+    out: dict[str, list[dict]] = {}
+    for p in sorted((Path(work_dir) / RUNS).glob("*/*.json")):
+        out.setdefault(p.parent.name, []).append(read_json(p))
+    return out
 
 
 def stage_seconds(s: BuildSettings, categories: list[str]) -> dict[str, float]:

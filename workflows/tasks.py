@@ -4,7 +4,9 @@ models) → CategoryShards → BuildCategory → BuildDataset (manifest.json).""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
+from typing import Iterator
 
 import luigi
 
@@ -39,6 +41,13 @@ class _BuildTask(luigi.Task):
             augment_overrides=self.augment_settings, shard_overrides=self.shard_settings,
             work_dir=Path(self.work_dir), dataset_dir=Path(self.dataset_dir), batch_size=self.batch_size)
 
+    @contextlib.contextmanager
+    def recorded(self) -> Iterator[None]:
+        """Record this run's start and finish under <work>/_runs (see steps.record_run)."""
+        steps.record_run(self.build, self.task_id, "start")
+        yield
+        steps.record_run(self.build, self.task_id, "done")
+
     def progress(self, done: int, total: int, message: str) -> None:
         """Progress callback handed to the batch functions: shows in Luigi's scheduler UI."""
         self.set_status_message(message)
@@ -52,7 +61,8 @@ class SourceList(_BuildTask):
         return luigi.LocalTarget(steps.list_path(self.build, self.category))
 
     def run(self):
-        steps.write_source_list(self.build, self.category)
+        with self.recorded():
+            steps.write_source_list(self.build, self.category)
 
 
 class PrepareBatch(_BuildTask):
@@ -66,13 +76,16 @@ class PrepareBatch(_BuildTask):
         return luigi.LocalTarget(steps.batch_path(self.build, "prepare", self.category, self.batch))
 
     def run(self):
-        steps.prepare_step(self.build, self.category, self.batch, self.progress)
+        with self.recorded():
+            steps.prepare_step(self.build, self.category, self.batch, self.progress)
 
 
 class RenderBatch(_BuildTask):
     category = luigi.Parameter()
     batch = luigi.IntParameter()
     resources = {"blender": 1}
+    crash_retries = luigi.IntParameter(default=1, significant=False,
+                                       description="re-runs of a batch whose Blender crashed or hung ([RenderBatch] in luigi.cfg)")
 
     def requires(self):
         return self.clone(PrepareBatch)
@@ -81,7 +94,8 @@ class RenderBatch(_BuildTask):
         return luigi.LocalTarget(steps.batch_path(self.build, "render", self.category, self.batch))
 
     def run(self):
-        steps.render_step(self.build, self.category, self.batch, self.progress)
+        with self.recorded():
+            steps.render_step(self.build, self.category, self.batch, self.progress, self.crash_retries)
 
 
 class AugmentBatch(_BuildTask):
@@ -95,7 +109,8 @@ class AugmentBatch(_BuildTask):
         return luigi.LocalTarget(steps.batch_path(self.build, "augment", self.category, self.batch))
 
     def run(self):
-        steps.augment_step(self.build, self.category, self.batch, self.progress)
+        with self.recorded():
+            steps.augment_step(self.build, self.category, self.batch, self.progress)
 
 
 class CategoryShards(_BuildTask):
@@ -104,15 +119,22 @@ class CategoryShards(_BuildTask):
     category = luigi.Parameter()
 
     def requires(self):
-        return self.clone(SourceList)
+        # Batches are static dependencies, counted without opening a mesh: with a central
+        # scheduler every worker then knows them and can take any (dynamic ones would be runnable
+        # only by the worker that yielded them).
+        return [self.clone(SourceList)] + self.batch_tasks(steps.expected_models(self.build, self.category))
 
     def complete(self):
         return steps.category_is_current(self.build, self.category)
 
+    def batch_tasks(self, n_models: int) -> list[AugmentBatch]:
+        """The last batch task of each batch of a category of ``n_models`` models."""
+        return [self.clone(AugmentBatch, batch=b) for b in range(steps.n_batches(n_models, self.batch_size))]
+
     def run(self):
-        # The number of batches is known only once the source is listed: dynamic dependencies.
-        n = len(steps.read_list(self.build, self.category))
-        yield [self.clone(AugmentBatch, batch=b) for b in range(steps.n_batches(n, self.batch_size))]
+        # The listed count normally equals the expected one; if the source folder changed in
+        # between, the missing batches are added here as dynamic dependencies.
+        yield self.batch_tasks(len(steps.read_list(self.build, self.category)))
         steps.shards_step(self.build, self.category, self.progress)
 
 
