@@ -101,29 +101,9 @@ def test_skips_done_models_and_is_deterministic(renders):
             assert (out / name).read_bytes() == (root / "again" / CAT / "m1" / name).read_bytes(), name
 
 
-DIGEST_SCRIPT = """
-import hashlib, sys
-import numpy as np
-sys.path.insert(0, {root!r})
-from tests.test_augment_batch import line_drawing
-from augment.vectorize import vectorize
-from augment.variants import view_variants
-from augment.settings import AugmentSettings
-img, _ = line_drawing(1)
-h = hashlib.sha256()
-for v in view_variants(vectorize(img), 128, AugmentSettings(variants=2, out_size=64), (3, "c", "m", 0)):
-    h.update(v.image.tobytes())
-    for s in v.strokes:
-        h.update(np.ascontiguousarray(s).tobytes())
-print(h.hexdigest())
-"""
-
-
-def test_same_output_in_another_process():
+def variants_digest() -> str:
+    """sha256 over the sketches and strokes of one vectorized drawing's variants."""
     import hashlib
-    import os
-    import subprocess
-    import sys
 
     from augment.variants import view_variants
     from augment.vectorize import vectorize
@@ -134,8 +114,18 @@ def test_same_output_in_another_process():
         h.update(v.image.tobytes())
         for s in v.strokes:
             h.update(np.ascontiguousarray(s).tobytes())
+    return h.hexdigest()
+
+
+def test_same_output_in_another_process():
+    import os
+    import subprocess
+    import sys
+
     root = str(Path(__file__).resolve().parents[1])
+    # another interpreter with another hash seed: nothing may depend on set order or id()
     env = {**os.environ, "PYTHONHASHSEED": "12345"}
-    out = subprocess.run([sys.executable, "-c", DIGEST_SCRIPT.format(root=root)], env=env, cwd=root,
+    script = f"import sys; sys.path.insert(0, {root!r}); from tests.test_augment_batch import variants_digest; print(variants_digest())"
+    out = subprocess.run([sys.executable, "-c", script], env=env, cwd=root,
                          capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == h.hexdigest()
+    assert out.stdout.strip() == variants_digest()

@@ -15,9 +15,9 @@ import pytest
 import webdataset as wds
 
 sys.path.insert(0, str(Path(__file__).parent))
+from as_user import call_as  # noqa: E402
 from bad_inputs import GOOD, write_corpus, write_good, write_unreadable  # noqa: E402
 
-from pipeline.errors import ModelError  # noqa: E402
 from pipeline.manifest import read_manifest  # noqa: E402
 from pipeline.mesh_io import _DENIED, load_mesh  # noqa: E402
 from pipeline.prepare import PrepareSettings, prepare_batch  # noqa: E402
@@ -50,28 +50,12 @@ def _nobody() -> tuple[int, int]:
 
 
 def _load_as(uid_gid: tuple[int, int] | None, path: Path) -> str:
-    """load_mesh(path) in a forked child that first drops to ``uid_gid``; returns the error text."""
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # child: never returns into pytest
-        os.close(r)
-        try:
-            if uid_gid is not None:
-                os.setgid(uid_gid[1])
-                os.setuid(uid_gid[0])
-            load_mesh(path)
-            msg = "loaded"
-        except ModelError as e:
-            msg = str(e)
-        except BaseException as e:  # noqa: BLE001 - report anything to the parent
-            msg = f"unexpected {type(e).__name__}: {e}"
-        os.write(w, msg.encode())
-        os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        out = f.read().decode()
-    os.waitpid(pid, 0)
-    return out
+    """load_mesh(path) as ``uid_gid``; returns the error text."""
+    def load() -> str:
+        load_mesh(path)
+        return "loaded"
+
+    return call_as(uid_gid, load)
 
 
 def test_unreadable_file_names_permission(tmp_path: Path) -> None:
@@ -89,12 +73,12 @@ def test_unreadable_file_names_permission(tmp_path: Path) -> None:
         folder.chmod(0o755)
         path = folder / "locked.obj"
         write_unreadable(path)
-        assert _load_as(who, path) == f"{path}: unreadable: {_DENIED}"
+        assert _load_as(who, path) == f"ModelError: {path}: unreadable: {_DENIED}"
         hidden = folder / "private"  # a folder above the file that can't be entered
         hidden.mkdir()
         (hidden / "box.obj").write_text("v 0 0 0\n")
         hidden.chmod(0)
-        assert _load_as(who, hidden / "box.obj") == f"{hidden / 'box.obj'}: unreadable: {_DENIED} on a folder above it"
+        assert _load_as(who, hidden / "box.obj") == f"ModelError: {hidden / 'box.obj'}: unreadable: {_DENIED} on a folder above it"
     finally:
         if (folder / "private").exists():
             (folder / "private").chmod(0o700)

@@ -7,11 +7,15 @@ import errno
 import os
 import pwd
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
 import pytest
 import trimesh
+
+sys.path.insert(0, str(Path(__file__).parent))
+from as_user import call_as  # noqa: E402
 
 from pipeline.atomic import StorageError, storage_error, write_bytes
 from pipeline.layout import ModelRef
@@ -68,23 +72,11 @@ def test_permission_denied_names_file() -> None:
         folder.chmod(0o755)  # root's folder: others may enter but not write
         target = folder / "cat" / "record.json"
         (folder / "cat").mkdir()
-        r, w = os.pipe()
-        pid = os.fork()
-        if pid == 0:
-            os.close(r)
-            try:
-                os.setgid(nobody.pw_gid)
-                os.setuid(nobody.pw_uid)
-                write_bytes(target, b"{}")
-                msg = "written"
-            except BaseException as e:  # noqa: BLE001 - report anything to the parent
-                msg = f"{type(e).__name__}: {e}"
-            os.write(w, msg.encode())
-            os._exit(0)
-        os.close(w)
-        with os.fdopen(r, "rb") as f:
-            msg = f.read().decode()
-        os.waitpid(pid, 0)
+        def write() -> str:
+            write_bytes(target, b"{}")
+            return "written"
+
+        msg = call_as((nobody.pw_uid, nobody.pw_gid), write)
         assert msg.startswith("StorageError: ") and msg.endswith(
             f"cannot write {target}: permission denied; make the folder writable by this user"), msg
         assert not target.exists()
