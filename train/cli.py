@@ -97,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
 
         from train.evaluate import evaluate, format_table
 
-        out = a.out or str(Path(a.checkpoint).with_name(f"eval_{a.split}.json"))
+        # named after the checkpoint too, so evaluating best.pt does not overwrite checkpoint.pt's
+        ckpt = Path(a.checkpoint)
+        out = a.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{a.split}.json"))
         with torch.no_grad():
             res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out)
         print(format_table(res))
