@@ -32,7 +32,11 @@ def resample_strokes(strokes: Strokes, spacing: float) -> Strokes:
 
 def drop(strokes: Strokes, rng: np.random.Generator, short_length: float, short_prob: float,
          prob: float) -> Strokes:
-    """Drop strokes shorter than ``short_length`` with ``short_prob``, any stroke with ``prob``."""
+    """Drop strokes shorter than ``short_length`` with ``short_prob``, any stroke with ``prob``.
+
+    The longest stroke survives if every one would be dropped: a view drawn with one or two
+    strokes (an end-on knife) must not become a blank training sketch.
+    """
     out = []
     for s in strokes:
         u_short, u_any = rng.random(2)
@@ -41,6 +45,8 @@ def drop(strokes: Strokes, rng: np.random.Generator, short_length: float, short_
         if u_any < prob:
             continue
         out.append(s)
+    if not out and strokes:
+        out = [max(strokes, key=polyline_length)]
     return out
 
 

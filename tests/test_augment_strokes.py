@@ -94,7 +94,10 @@ def test_drop_short_and_random():
     src = lines(10, 100.0) + lines(10, 5.0)
     out = A.drop(src, rng(), short_length=8.0, short_prob=1.0, prob=0.0)
     assert len(out) == 10 and all(polyline_length(s) > 8 for s in out)
-    assert len(A.drop(src, rng(), 8.0, 0.0, 1.0)) == 0
+    # dropping everything would leave a blank sketch: the longest stroke stays
+    kept = A.drop(src, rng(), 8.0, 0.0, 1.0)
+    assert len(kept) == 1 and polyline_length(kept[0]) == max(polyline_length(s) for s in src)
+    assert A.drop([], rng(), 8.0, 0.0, 1.0) == []
     assert len(A.drop(src, rng(), 8.0, 0.0, 0.0)) == 20
 
 

@@ -1,5 +1,6 @@
 """Luigi tasks (`luigi --module workflows BuildDataset --local-scheduler`)."""
 import os
+import sys
 
 # Keep thread pools small: CI machines have 2 cores and tests run Blender subprocesses too.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -14,6 +15,12 @@ from workflows.tasks import (  # noqa: E402  (the environment must be set before
     RenderBatch,
     SourceList,
 )
+
+if "luigi" in os.path.basename(sys.argv[0]):  # the `luigi` command, not an importing test or trainer
+    from workflows.warm import forks_per_task, warm_stage_code
+
+    if forks_per_task(sys.argv[1:]):
+        warm_stage_code()
 
 __all__ = ["AugmentBatch", "BuildCategory", "BuildDataset", "CategoryShards", "PrepareBatch",
            "RenderBatch", "SourceList"]

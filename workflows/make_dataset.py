@@ -58,6 +58,10 @@ def main(argv: list[str] | None = None) -> int:
                         views=a.views, variants=a.variants, image_size=a.image_size, out_size=a.out_size,
                         seed=a.seed, batch_size=a.batch_size, work_dir=a.work_dir, dataset_dir=a.dataset_dir)
     t0 = time.perf_counter()
+    if a.workers > 1:  # Luigi forks a child per task: load and compile the stages once, here
+        from workflows.warm import warm_stage_code
+
+        warm_stage_code()
     ok = luigi.build([task], local_scheduler=True, workers=a.workers, log_level="INFO")
     elapsed = time.perf_counter() - t0
     if not ok or not (Path(a.dataset_dir) / "manifest.json").exists():
