@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import point_cloud_utils as pcu
 import pytest
 import trimesh
 from scipy.spatial import cKDTree
@@ -108,6 +109,10 @@ def test_defects_really_damage_the_mesh():
                 assert len(np.unique(np.sort(part.faces, axis=1), axis=0)) < len(part.faces)
             elif kind == "internal_faces":
                 assert len(part.vertices) == len(ref.vertices) + 4
+                # in the material (the cup's wall), not floating in the hollow: negative signed
+                # distance to the undamaged part for every corner of the quad
+                sd = pcu.signed_distance_to_mesh(part.vertices[-4:], ref.vertices, ref.faces)[0]
+                assert (sd < 0).all(), (i, label, sd)
             elif kind == "flipped_faces" and len(m.defects) == 1:
                 assert not mesh.is_winding_consistent
             found.add(kind)

@@ -1,13 +1,14 @@
 """Mesh defects like those in scraped CAD collections, so downstream repair code sees them.
 
 Kinds: ``holes`` (a patch of faces removed), ``flipped_faces`` (some faces wound inward),
-``duplicate_faces`` (faces repeated), ``internal_faces`` (a stray quad inside a part).
+``duplicate_faces`` (faces repeated), ``internal_faces`` (a stray quad inside a part's material).
 Each applied defect is named ``<kind>:<part label>`` in the model's ``defects`` list.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from pipeline.shapes.model import Part
 
@@ -56,20 +57,58 @@ def _duplicate(part: Part, rng: np.random.Generator) -> None:
     part.faces = np.concatenate([part.faces, part.faces[dup]])
 
 
+def _ray_hits(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Distances > 1e-9 along the ray at which it crosses triangles ``tri`` (m, 3, 3)."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    h = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    ok = np.abs(det) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    sv = origin - tri[:, 0]
+    u = inv * np.einsum("ij,ij->i", sv, h)
+    q = np.cross(sv, e1)
+    v = inv * (q @ direction)
+    t = inv * np.einsum("ij,ij->i", e2, q)
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
+    return np.sort(t[hit])
+
+
 def _internal(part: Part, rng: np.random.Generator) -> None:
-    """A quad through the part's centroid, spanning part of its bounding box."""
-    used = part.vertices[np.unique(part.faces)]
-    c = used.mean(axis=0)
-    half = (used.max(axis=0) - used.min(axis=0)) * 0.15
-    axis = int(rng.integers(3))  # the quad's normal axis
-    a, b = [i for i in range(3) if i != axis]
-    quad = np.tile(c, (4, 1))
-    for j, (sa, sb) in enumerate(((-1, -1), (1, -1), (1, 1), (-1, 1))):
-        quad[j, a] += sa * half[a]
-        quad[j, b] += sb * half[b]
-    n = len(part.vertices)
+    """A quad hidden in the part's material, halfway through it below a random face.
+
+    The part's centroid would not do: for a hollow part (a mug's cup) it lies in the empty
+    inside, and a quad there is a floating sheet, not internal faces.
+    """
+    tri = part.vertices[part.faces]
+    f = int(rng.integers(len(tri)))
+    n = np.cross(tri[f, 1] - tri[f, 0], tri[f, 2] - tri[f, 0])
+    n /= np.linalg.norm(n) + 1e-300
+    p = tri[f].mean(axis=0)
+    # Inward is the direction with an odd number of crossings ahead (an earlier flipped-faces
+    # defect may have turned this face around).
+    others = np.delete(tri, f, axis=0)
+    hits = _ray_hits(p, -n, others)
+    if len(hits) % 2 == 0:
+        n = -n
+        hits = _ray_hits(p, -n, others)
+    if len(hits) == 0:
+        return  # not a closed part here (a hole right behind the face): leave it undamaged
+    # Halfway to the first crossing is inside; the ball reaching to the nearest surface point is
+    # too (a ray along a thin wall can run far before crossing), so the quad's corners stay in it.
+    c = p - n * float(hits[0]) / 2
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+    clearance = float(trimesh.proximity.closest_point(mesh, c[None])[1][0])
+    extent = float((part.vertices.max(axis=0) - part.vertices.min(axis=0)).max())
+    half = min(0.6 * clearance / np.sqrt(2), 0.15 * extent)
+    # two directions spanning the plane parallel to the face
+    e = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = np.cross(n, e)
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    quad = np.array([c + half * (su * u + sw * w) for su, sw in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    k = len(part.vertices)
     part.vertices = np.concatenate([part.vertices, quad])
-    part.faces = np.concatenate([part.faces, np.array([[n, n + 1, n + 2], [n, n + 2, n + 3]])])
+    part.faces = np.concatenate([part.faces, np.array([[k, k + 1, k + 2], [k, k + 2, k + 3]])])
 
 
 _APPLY = {"holes": _holes, "flipped_faces": _flipped, "duplicate_faces": _duplicate, "internal_faces": _internal}

@@ -37,8 +37,11 @@ def build(rng: np.random.Generator) -> list[Part]:
     c = np.cos(phi)
     s = np.sin(phi)
     ys = yc + hy * np.sign(s) * np.abs(s) ** squareness
-    wall_r = R_bot + (R_top - R_bot) * (ys / H)
-    zs = wall_r - tube_r * 1.2 + (reach + tube_r * 1.2) * np.abs(c) ** squareness
+    # the cup's outer radius at each height, bulge included: the ends sit deep in the
+    # wall, so the handle stays joined to the cup through the watertight repair
+    side = np.array(outer[2:-1])
+    wall_r = np.interp(ys, side[:, 1], side[:, 0])
+    zs = wall_r - 0.8 * wall + (reach + 0.8 * wall) * np.abs(c) ** squareness
     path = np.stack([np.zeros_like(ys), ys, zs], axis=1)
     parts.append(make_part("handle", pr.tube(path, tube_r, k=16)))
     return parts
