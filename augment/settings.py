@@ -73,6 +73,7 @@ class AugmentSettings:
     drop_short_length: float = 8.0
     drop_short_prob: float = 0.3
     drop_prob: float = 0.02
+    drop_keep_fraction: float = 0.5  # dropped strokes return (longest first) to keep this share of ink
 
     # Pencil look.
     darkness: tuple[float, float] = (0.55, 0.95)   # per-stroke graphite opacity
@@ -93,7 +94,7 @@ class AugmentSettings:
         if len(self.widths) < 1 or min(self.widths) <= 0:
             raise ValueError(f"widths must be positive: {self.widths}")
         for name in ("split_prob", "truncate_prob", "extend_prob", "overdraw_prob",
-                     "drop_short_prob", "drop_prob"):
+                     "drop_short_prob", "drop_prob", "drop_keep_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1]")
         if self.supersample < 1:

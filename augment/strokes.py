@@ -31,23 +31,24 @@ def resample_strokes(strokes: Strokes, spacing: float) -> Strokes:
 
 
 def drop(strokes: Strokes, rng: np.random.Generator, short_length: float, short_prob: float,
-         prob: float) -> Strokes:
+         prob: float, keep_fraction: float = 0.5) -> Strokes:
     """Drop strokes shorter than ``short_length`` with ``short_prob``, any stroke with ``prob``.
 
-    The longest stroke survives if every one would be dropped: a view drawn with one or two
-    strokes (an end-on knife) must not become a blank training sketch.
+    Dropped strokes come back, longest first, until at least ``keep_fraction`` of the drawing's
+    length is kept: a view drawn with one or two strokes (a mug's outline, an end-on knife) must
+    not become a blank or unrecognisable training sketch.
     """
-    out = []
-    for s in strokes:
+    lengths = [polyline_length(s) for s in strokes]
+    keep = []
+    for s, length in zip(strokes, lengths):
         u_short, u_any = rng.random(2)
-        if polyline_length(s) < short_length and u_short < short_prob:
-            continue
-        if u_any < prob:
-            continue
-        out.append(s)
-    if not out and strokes:
-        out = [max(strokes, key=polyline_length)]
-    return out
+        keep.append(not ((length < short_length and u_short < short_prob) or u_any < prob))
+    total = sum(lengths)
+    for i in sorted(range(len(strokes)), key=lambda i: -lengths[i]):
+        if sum(length for length, k in zip(lengths, keep) if k) >= keep_fraction * total:
+            break
+        keep[i] = True
+    return [s for s, k in zip(strokes, keep) if k]
 
 
 def split(strokes: Strokes, rng: np.random.Generator, prob: float, max_points: int,
@@ -179,7 +180,7 @@ def augment_strokes(strokes: Strokes, rng: np.random.Generator, settings: Augmen
     cuts, wobble and overdraws follow the smooth curve.
     """
     st = settings
-    out = drop(strokes, rng, st.drop_short_length, st.drop_short_prob, st.drop_prob)
+    out = drop(strokes, rng, st.drop_short_length, st.drop_short_prob, st.drop_prob, st.drop_keep_fraction)
     out = split(out, rng, st.split_prob, st.split_max_points, st.split_gap, st.split_min_piece)
     out = truncate(out, rng, st.truncate_prob, st.truncate_max_fraction, st.truncate_max_px)
     out = extend(out, rng, st.extend_prob, st.extend_max_px)

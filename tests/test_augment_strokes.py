@@ -94,11 +94,20 @@ def test_drop_short_and_random():
     src = lines(10, 100.0) + lines(10, 5.0)
     out = A.drop(src, rng(), short_length=8.0, short_prob=1.0, prob=0.0)
     assert len(out) == 10 and all(polyline_length(s) > 8 for s in out)
-    # dropping everything would leave a blank sketch: the longest stroke stays
-    kept = A.drop(src, rng(), 8.0, 0.0, 1.0)
-    assert len(kept) == 1 and polyline_length(kept[0]) == max(polyline_length(s) for s in src)
-    assert A.drop([], rng(), 8.0, 0.0, 1.0) == []
     assert len(A.drop(src, rng(), 8.0, 0.0, 0.0)) == 20
+    assert A.drop([], rng(), 8.0, 0.0, 1.0) == []
+
+
+def test_drop_keeps_most_of_the_drawing():
+    # dropping everything would leave a blank sketch: the longest strokes come back until half
+    # the length is kept, in their original order
+    src = lines(1, 30.0) + lines(1, 100.0) + lines(3, 20.0)
+    kept = A.drop(src, rng(), 8.0, 0.0, 1.0)
+    assert [polyline_length(s) for s in kept] == [pytest.approx(100.0)]
+    src = lines(4, 25.0) + lines(1, 10.0)
+    kept = A.drop(src, rng(), 8.0, 0.0, 1.0, keep_fraction=0.6)
+    assert len(kept) == 3 and sum(polyline_length(s) for s in kept) == pytest.approx(75.0)
+    assert A.drop(src, rng(), 8.0, 0.0, 1.0, keep_fraction=0.0) == []
 
 
 def test_chain_is_deterministic_and_seed_dependent():
