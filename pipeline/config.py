@@ -24,6 +24,13 @@ def settings_hash(settings: Any, upstream: str = "", length: int = 10) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()[:length]
 
 
+# What each stage's code writes, numbered. Bump a stage's number with any change to its code that
+# changes its outputs: its folder and every downstream one get new keys, so a work folder from
+# older code is never taken for current outputs (settings alone cannot tell them apart).
+STAGE_VERSIONS = {"source": 2, "prepare": 1, "render": 1, "augment": 2, "shards": 1}
+
+
 def stage_key(stage: str, settings: Any, upstream: str = "") -> str:
-    """Folder name for a stage's outputs: ``<stage>-<hash>``."""
-    return f"{stage}-{settings_hash(settings, upstream)}"
+    """Folder name for a stage's outputs: ``<stage>-<hash>`` of its settings, its code version
+    (``STAGE_VERSIONS``) and the upstream key."""
+    return f"{stage}-{settings_hash(settings, f'{upstream}|{stage} v{STAGE_VERSIONS[stage]}')}"

@@ -27,6 +27,18 @@ def test_settings_hash_changes_with_settings_and_upstream():
     assert stage_key("render", {"views": 4}).startswith("render-")
 
 
+def test_code_version_bump_rekeys_the_stage_and_downstream(monkeypatch):
+    from pipeline import config
+    from pipeline.build_settings import BuildSettings
+
+    s = BuildSettings()
+    before = {st: s.stage_dir(st).name for st in ("prepare", "render", "augment", "shards")}
+    monkeypatch.setitem(config.STAGE_VERSIONS, "render", config.STAGE_VERSIONS["render"] + 1)
+    after = {st: s.stage_dir(st).name for st in before}
+    assert after["prepare"] == before["prepare"]
+    assert all(after[st] != before[st] for st in ("render", "augment", "shards"))
+
+
 def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path):
     target = tmp_path / "out.json"
     with pytest.raises(RuntimeError):
