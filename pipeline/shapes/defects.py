@@ -57,46 +57,34 @@ def _duplicate(part: Part, rng: np.random.Generator) -> None:
     part.faces = np.concatenate([part.faces, part.faces[dup]])
 
 
-def _ray_hits(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Distances > 1e-9 along the ray at which it crosses triangles ``tri`` (m, 3, 3)."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    h = np.cross(direction, e2)
-    det = np.einsum("ij,ij->i", e1, h)
-    ok = np.abs(det) > 1e-12
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    sv = origin - tri[:, 0]
-    u = inv * np.einsum("ij,ij->i", sv, h)
-    q = np.cross(sv, e1)
-    v = inv * (q @ direction)
-    t = inv * np.einsum("ij,ij->i", e2, q)
-    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9)
-    return np.sort(t[hit])
-
-
 def _internal(part: Part, rng: np.random.Generator) -> None:
     """A quad hidden in the part's material, halfway through it below a random face.
 
     The part's centroid would not do: for a hollow part (a mug's cup) it lies in the empty
     inside, and a quad there is a floating sheet, not internal faces.
     """
-    tri = part.vertices[part.faces]
-    f = int(rng.integers(len(tri)))
-    n = np.cross(tri[f, 1] - tri[f, 0], tri[f, 2] - tri[f, 0])
-    n /= np.linalg.norm(n) + 1e-300
-    p = tri[f].mean(axis=0)
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+    f = int(rng.integers(len(part.faces)))
+    n = mesh.face_normals[f]
+    p = mesh.triangles_center[f]
+
+    def crossings(direction: np.ndarray) -> np.ndarray:
+        """Distances ahead of p at which the ray crosses another face, nearest first."""
+        locs, _, hit = mesh.ray.intersects_location([p], [direction])
+        t = (locs - p) @ direction
+        return np.sort(t[(hit != f) & (t > 1e-9)])
+
     # Inward is the direction with an odd number of crossings ahead (an earlier flipped-faces
     # defect may have turned this face around).
-    others = np.delete(tri, f, axis=0)
-    hits = _ray_hits(p, -n, others)
+    hits = crossings(-n)
     if len(hits) % 2 == 0:
         n = -n
-        hits = _ray_hits(p, -n, others)
+        hits = crossings(-n)
     if len(hits) == 0:
         return  # not a closed part here (a hole right behind the face): leave it undamaged
     # Halfway to the first crossing is inside; the ball reaching to the nearest surface point is
     # too (a ray along a thin wall can run far before crossing), so the quad's corners stay in it.
     c = p - n * float(hits[0]) / 2
-    mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
     clearance = float(trimesh.proximity.closest_point(mesh, c[None])[1][0])
     extent = float((part.vertices.max(axis=0) - part.vertices.min(axis=0)).max())
     half = min(0.6 * clearance / np.sqrt(2), 0.15 * extent)
