@@ -97,10 +97,11 @@ def check_container(path: Path, head: bytes, size: int) -> None:
     family = ".glb" if ext == ".gltf" and found == ".glb" else ext
     if found is not None and found != family and ext != ".gltf":
         raise ModelError(path, f"wrong extension: named {ext} but the content is {found[1:].upper()} data")
-    if found is None and ext != ".obj" and not (ext == ".stl" and not head.lstrip().lower().startswith(b"solid")):
+    binary_stl = ext == ".stl" and not head.lstrip().lower().startswith(b"solid")
+    if found is None and ext != ".obj" and not binary_stl:
         kind = "text" if b"\0" not in head else "binary data"
         raise ModelError(path, f"not a mesh: {kind} in no {ext[1:].upper()} layout")
-    if ext == ".stl" and not head.lstrip().lower().startswith(b"solid"):
+    if binary_stl:
         n = int.from_bytes(head[80:84], "little") if size >= 84 else 0
         if size < 84 or size < 84 + 50 * n:
             raise ModelError(path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) "
@@ -111,12 +112,12 @@ def check_container(path: Path, head: bytes, size: int) -> None:
             raise ModelError(path, "truncated: PLY header has no end_header")
         header = head[:end].decode("ascii", "replace")
         body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
-        if "binary" in header and size - body_start < _ply_min_bytes(header):
-            raise ModelError(path, f"truncated: PLY header declares at least {_ply_min_bytes(header)} bytes "
+        need = _ply_min_bytes(header) if "binary" in header else 0
+        if size - body_start < need:
+            raise ModelError(path, f"truncated: PLY header declares at least {need} bytes "
                                    f"of data but the file has {size - body_start}")
-    if found == ".glb" and size >= 12 and size < int.from_bytes(head[8:12], "little"):
-        raise ModelError(path, f"truncated: GLB header declares {int.from_bytes(head[8:12], 'little')} bytes "
-                               f"but the file has {size}")
+    if found == ".glb" and size >= 12 and size < (declared := int.from_bytes(head[8:12], "little")):
+        raise ModelError(path, f"truncated: GLB header declares {declared} bytes but the file has {size}")
 
 
 def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
