@@ -127,23 +127,19 @@ def render_step(s: BuildSettings, category: str, batch: int, progress: Progress 
     prep = s.stage_dir("prepare")
     items = [(mid, model_dir(prep, category, mid) / "mesh.ply") for mid in ok]
     records: list[dict] = []
-    attempts = 0
     crashes: list[str] = []
-    while items:
-        attempts += 1
-        last = attempts > crash_retries
+    for attempt in range(crash_retries + 1 if items else 0):
         try:
             records = render_batch(category, items, s.stage_dir("render"), s.render_settings(), s.seed,
-                                   progress, on_crash="record" if last else "raise")
+                                   progress, on_crash="record" if attempt == crash_retries else "raise")
             break
         except RenderBatchError as exc:
             crashes.append(str(exc))
             if progress is not None:
-                progress(0, len(items), f"render {category} batch {batch}: retry {attempts}/{crash_retries} after: {exc}"[:300])
+                progress(0, len(items), f"render {category} batch {batch}: retry {attempt + 1}/{crash_retries} after: {exc}"[:300])
     outcomes = failed + [_outcome(mid, "render", rec) for (mid, _), rec in zip(items, records)]
-    doc = _write_batch(s, "render", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
-                       attempts=attempts, crashes=crashes)
-    return doc
+    return _write_batch(s, "render", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
+                        attempts=len(crashes) + bool(records), crashes=crashes)
 
 
 def augment_step(s: BuildSettings, category: str, batch: int, progress: Progress = None) -> dict:
