@@ -5,6 +5,7 @@ models) → CategoryShards → BuildCategory → BuildDataset (manifest.json).""
 from __future__ import annotations
 
 import contextlib
+import functools
 from pathlib import Path
 from typing import Iterator
 
@@ -122,7 +123,12 @@ class CategoryShards(_BuildTask):
         # Batches are static dependencies, counted without opening a mesh: with a central
         # scheduler every worker then knows them and can take any (dynamic ones would be runnable
         # only by the worker that yielded them).
-        return [self.clone(SourceList)] + self.batch_tasks(steps.expected_models(self.build, self.category))
+        return [self.clone(SourceList)] + self.batch_tasks(self.expected_models)
+
+    @functools.cached_property
+    def expected_models(self) -> int:
+        # Luigi calls requires() several times per task; count (list a source folder) once
+        return steps.expected_models(self.build, self.category)
 
     def complete(self):
         return steps.category_is_current(self.build, self.category)
