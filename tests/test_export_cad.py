@@ -11,10 +11,24 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from OCP.BRep import BRep_Tool
+from OCP.BRepAdaptor import BRepAdaptor_Surface
+from OCP.BRepBndLib import BRepBndLib
+from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid, BRepBuilderAPI_Sewing
+from OCP.BRepCheck import BRepCheck_Analyzer
+from OCP.BRepGProp import BRepGProp
+from OCP.Bnd import Bnd_Box
+from OCP.GeomAbs import GeomAbs_BSplineSurface
+from OCP.GProp import GProp_GProps
+from OCP.OCP.collections import IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as EdgeFaces
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+from OCP.TopExp import TopExp, TopExp_Explorer
+from OCP.TopoDS import TopoDS
 
 sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import box_sketch, camera  # noqa: E402
 
+from train.export.cad_view import read_cad, render_cad
 from train.export.iges import read_iges
 from train.export.units import CadUnits
 from train.fit import FitSettings, save_checkpoint
@@ -22,35 +36,10 @@ from train.model import SketchToPatches
 from train.predict import predict
 from train.templates import load_template
 
-from OCP.BRep import BRep_Tool  # noqa: E402
-from OCP.BRepAdaptor import BRepAdaptor_Surface  # noqa: E402
-from OCP.BRepBndLib import BRepBndLib  # noqa: E402
-from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid, BRepBuilderAPI_Sewing  # noqa: E402
-from OCP.BRepCheck import BRepCheck_Analyzer  # noqa: E402
-from OCP.BRepGProp import BRepGProp  # noqa: E402
-from OCP.Bnd import Bnd_Box  # noqa: E402
-from OCP.GeomAbs import GeomAbs_BSplineSurface  # noqa: E402
-from OCP.GProp import GProp_GProps  # noqa: E402
-from OCP.IFSelect import IFSelect_ReturnStatus  # noqa: E402
-from OCP.IGESControl import IGESControl_Reader  # noqa: E402
-from OCP.OCP.collections import IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as EdgeFaces  # noqa: E402
-from OCP.STEPControl import STEPControl_Reader  # noqa: E402
-from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID  # noqa: E402
-from OCP.TopExp import TopExp, TopExp_Explorer  # noqa: E402
-from OCP.TopoDS import TopoDS  # noqa: E402
-
 TEMPLATE = "mug"  # 44 patches with T-junctions: sewing must split edges to share them
 
 
-# ---- independent reading (OpenCASCADE only) ----------------------------------------------------
-
-
-def read_cad(path: Path):
-    """The shape in a STEP or IGES file, in millimetres (OpenCASCADE's reader converts units)."""
-    reader = STEPControl_Reader() if path.suffix == ".stp" else IGESControl_Reader()
-    assert reader.ReadFile(str(path)) == IFSelect_ReturnStatus.IFSelect_RetDone
-    assert reader.TransferRoots() > 0
-    return reader.OneShape()
+# ---- independent reading: OpenCASCADE's readers (via cad_view.read_cad), OpenCASCADE's checks ----
 
 
 def subshapes(shape, kind) -> list:
@@ -198,3 +187,11 @@ def test_bad_units_are_refused():
         CadUnits("ft")
     with pytest.raises(ValueError, match="scale must be positive"):
         CadUnits("mm", 0.0)
+
+
+def test_cad_view_renders_the_step_faces(prediction):
+    _, out, _ = prediction
+    img = render_cad(out / "patches.stp", size=96)
+    assert img.shape == (96, 96, 3)
+    colours = {tuple(c) for c in img.reshape(-1, 3)[::7]}
+    assert len(colours) > 20  # shaded faces of several colours, not a blank or a single fill

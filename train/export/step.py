@@ -36,7 +36,7 @@ class SewnPatches:
     solid: bool
 
 
-def _quiet() -> None:
+def quiet_opencascade() -> None:
     """OpenCASCADE prints transfer statistics to stdout; keep only failures."""
     from OCP.Message import Message, Message_Gravity
 
@@ -92,7 +92,7 @@ def write_step(path: str | Path, nets: np.ndarray, units: CadUnits = CadUnits())
     from OCP.STEPControl import STEPControl_AsIs, STEPControl_Controller, STEPControl_Writer
     from OCP.TCollection import TCollection_HAsciiString
 
-    _quiet()
+    quiet_opencascade()
     sewn = sew_patches(np.asarray(nets, dtype=np.float64) * units.mm)
     STEPControl_Controller.Init_s()
     # the writer reads these process-wide settings when it converts; set them for every file
