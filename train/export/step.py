@@ -55,7 +55,10 @@ def bezier_face(net: np.ndarray):
     for i in range(4):
         for j in range(4):
             poles.SetValue(i + 1, j + 1, gp_Pnt(*(float(c) for c in net[i, j])))
-    return BRepBuilderAPI_MakeFace(Geom_BezierSurface(poles), 1e-7).Face()
+    maker = BRepBuilderAPI_MakeFace(Geom_BezierSurface(poles), 1e-7)
+    if not maker.IsDone():
+        raise ValueError(f"OpenCASCADE could not make a face of the patch (error {maker.Error()})")
+    return maker.Face()
 
 
 def sew_patches(nets: np.ndarray) -> SewnPatches:
