@@ -84,11 +84,14 @@ def sew(shape):
 
 @pytest.fixture(scope="module")
 def prediction(tmp_path_factory):
-    """``predict`` with an untrained network on the mug template (its output is the template:
-    output weights start at zero, bias = template parameters), default units (mm, ×100)."""
+    """``predict`` on the mug template with an untrained network whose output layer is perturbed
+    (bias = template parameters, small random weights), so the cuboid template comes out curved
+    as a trained one would; default units (mm, ×100)."""
     d = tmp_path_factory.mktemp("cad")
     torch.manual_seed(0)
     model = SketchToPatches(load_template(TEMPLATE).initial_params()).eval()
+    with torch.no_grad():
+        model.out.weight.normal_(0, 0.02)
     s = FitSettings(dataset="-", category="mug", template=TEMPLATE, out=str(d), image_size=32)
     save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
     cv2.imwrite(str(d / "s.png"), box_sketch(np.array([0.5, 0.6, 0.6]), camera(30, 20, 32), 32, 1))
@@ -116,6 +119,9 @@ def test_step_is_one_sewn_closed_solid_matching_the_obj(prediction):
     box, want = exact_bbox(shape), obj.bounds * mm
     assert np.abs(box - want).max() <= 1e-4 * np.ptp(want, axis=0).max()
     assert res["step"] == "solid" and res["clean"] and res["problems"] == []
+    t = load_template(TEMPLATE)
+    template = t.patches_from_params(t.initial_params(torch.float64)[None])[0].numpy()
+    assert np.abs(np.load(out / "patches.npy") - template).max() > 0.02  # bent, not the cuboids
 
 
 def test_iges_keeps_exact_bicubic_surfaces_that_sew_into_the_same_solid(prediction):
