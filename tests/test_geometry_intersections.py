@@ -15,7 +15,7 @@ from test_export_quadmesh import box_with_junctions, line  # noqa: E402
 from train.cli import main
 from train.export.quadmesh import quad_mesh
 from train.fit import FitSettings, save_checkpoint
-from train.geometry.intersections import mesh_intersections, patch_intersections
+from train.geometry.intersections import candidate_pairs, mesh_intersections, patch_intersections
 from train.model import SketchToPatches
 from train.templates import load_template
 
@@ -79,3 +79,14 @@ def test_predict_flags_an_intersecting_prediction(tmp_path):
     assert "# watertight: True" in header and "# clean: False" in header
     assert any(ln.startswith("# intersecting_patch_pairs: ") and not ln.endswith(": 0") for ln in header)
     assert any("in inch" in ln or "in in," in ln for ln in header)
+
+
+def test_candidates_include_every_overlapping_pair_with_a_large_face():
+    rng = np.random.default_rng(0)
+    tris = rng.uniform(-1, 1, size=(300, 1, 3)) + rng.normal(0, 0.03, size=(300, 3, 3))
+    tris[7] = [[-1.2, -1, -1], [1.2, 1, 1], [1.2, 1.1, 1]]  # one long sliver across everything
+    lo, hi = tris.min(1), tris.max(1)
+    i, j = np.triu_indices(len(tris), 1)
+    want = {(a, b) for a, b in zip(i, j) if np.all(lo[a] <= hi[b]) and np.all(lo[b] <= hi[a])}
+    assert {tuple(p) for p in candidate_pairs(tris).tolist()} == want
+    assert any(7 in p for p in want)

@@ -51,17 +51,27 @@ def candidate_pairs(triangles: np.ndarray) -> np.ndarray:
     """Face pairs ``(K, 2)``, i < j, whose bounding boxes overlap.
 
     Two triangles can only meet if their centroids are within the sum of their radii (largest
-    centroid-to-corner distance), so a k-d tree query at twice the largest radius finds all of
-    them; the boxes then prune the list.
+    centroid-to-corner distance). Typical faces are paired by one k-d tree query at twice the
+    largest typical radius; the few large faces (a stretched patch) are queried one by one at
+    their own radius plus the largest, so one long sliver does not make every pair a candidate.
+    The boxes then prune the list.
     """
-    if len(triangles) < 2:
+    n = len(triangles)
+    if n < 2:
         return np.zeros((0, 2), int)
     centre = triangles.mean(axis=1)
-    radius = float(np.linalg.norm(triangles - centre[:, None], axis=-1).max())
-    pairs = cKDTree(centre).query_pairs(2.0 * radius * (1 + 1e-9), output_type="ndarray")
+    radius = np.linalg.norm(triangles - centre[:, None], axis=-1).max(axis=1) * (1 + 1e-9)
+    typical = radius <= 4.0 * np.median(radius)
+    small = np.nonzero(typical)[0]
+    found = [small[cKDTree(centre[small]).query_pairs(2.0 * radius[small].max(), output_type="ndarray")]]
+    large = np.nonzero(~typical)[0]
+    if len(large):
+        near = cKDTree(centre).query_ball_point(centre[large], radius[large] + radius.max())
+        found.append(np.array([(i, j) for i, js in zip(large, near) for j in js if j != i], int).reshape(-1, 2))
+    pairs = np.unique(np.sort(np.concatenate(found), axis=1), axis=0)
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     overlap = np.all((lo[pairs[:, 0]] <= hi[pairs[:, 1]]) & (lo[pairs[:, 1]] <= hi[pairs[:, 0]]), axis=1)
-    return np.sort(pairs[overlap], axis=1)
+    return pairs[overlap]
 
 
 def mesh_intersections(vertices: np.ndarray, faces: np.ndarray, patch_of_face: np.ndarray | None = None) -> Intersections:
