@@ -68,7 +68,9 @@ def candidate_pairs(triangles: np.ndarray) -> np.ndarray:
     if len(large):
         near = cKDTree(centre).query_ball_point(centre[large], radius[large] + radius.max())
         found.append(np.array([(i, j) for i, js in zip(large, near) for j in js if j != i], int).reshape(-1, 2))
-    pairs = np.unique(np.sort(np.concatenate(found), axis=1), axis=0)
+    pairs = np.sort(np.concatenate(found), axis=1)
+    key = np.unique(pairs[:, 0] * n + pairs[:, 1])  # query_pairs and the large faces' queries overlap
+    pairs = np.stack([key // n, key % n], axis=1)
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     overlap = np.all((lo[pairs[:, 0]] <= hi[pairs[:, 1]]) & (lo[pairs[:, 1]] <= hi[pairs[:, 0]]), axis=1)
     return pairs[overlap]
