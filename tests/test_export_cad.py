@@ -201,3 +201,17 @@ def test_cad_view_renders_the_step_faces(prediction):
     assert img.shape == (96, 96, 3)
     colours = {tuple(c) for c in img.reshape(-1, 3)[::7]}
     assert len(colours) > 20  # shaded faces of several colours, not a blank or a single fill
+
+
+def test_open_surface_is_written_as_one_sewn_shell(tmp_path):
+    from train.export.bicubic import coons_to_bezier
+    from train.export.step import write_step
+
+    t = load_template("sphere24")
+    patches = t.patches_from_params(t.initial_params(torch.float64)[None])[0].numpy()[1:]  # a hole
+    sewn = write_step(tmp_path / "open.stp", coons_to_bezier(patches))
+    assert not sewn.solid and sewn.free_edges == 4
+    shape = read_cad(tmp_path / "open.stp")
+    assert len(subshapes(shape, TopAbs_SOLID)) == 0 and len(subshapes(shape, TopAbs_SHELL)) == 1
+    assert len(subshapes(shape, TopAbs_FACE)) == 23
+    assert faces_per_edge(shape) == Counter({2: 44, 1: 4})  # sewn everywhere but the hole's rim
