@@ -17,7 +17,10 @@ from workflows.tasks import (  # noqa: E402  (the environment must be set before
 )
 
 if "luigi" in os.path.basename(sys.argv[0]):  # the `luigi` command, not an importing test or trainer
+    from workflows.console import Console
     from workflows.warm import forks_per_task, warm_stage_code
+
+    Console.install()  # progress line, luigi.log in the work folder, summary at exit
 
     if forks_per_task(sys.argv[1:]):
         warm_stage_code()

@@ -145,7 +145,8 @@ class CategoryShards(_ListedTask):
         return not steps.category_problems(self.build, self.lst, self.verify)
 
     def run(self):
-        steps.shards_step(self.build, self.lst, self.progress)
+        with self.recorded():
+            steps.shards_step(self.build, self.lst, self.progress)
 
 
 class _BuildRoot(_BuildTask):
