@@ -1,6 +1,8 @@
-"""Cost of the completeness check a re-run makes on a built category (workflows.steps.category_problems):
-sizes only (the default), every shard's sha256 (``--verify``), and, for scale, a full
-``pipeline verify`` (reads every tar). Synthetic samples as in bench_shards.py; medians over repeats.
+"""What a re-run costs before any work: the completeness check of a built category
+(workflows.steps.category_problems) with sizes only (the default), every shard's sha256
+(``--verify``), and, for scale, a full ``pipeline verify`` (reads every tar); and re-reading a
+folder source's model list (pipeline.listing): first time (every file hashed) vs cached.
+Synthetic samples as in bench_shards.py; medians over repeats.
 Run: OMP_NUM_THREADS=1 .venv/bin/python bench/bench_repair.py [--models 256] [--repeats 5]
 """
 
@@ -54,6 +56,29 @@ def main() -> None:
             m = statistics.median(ts)
             print(f"{name:<24} median {1000 * m:8.1f} ms  ({m / base:6.0f}x the size check, "
                   f"{total / m / 2**20:7.0f} MiB/s)")
+        listing(root, a.models, a.repeats)
+
+
+def listing(root: Path, n: int, repeats: int) -> None:
+    """Model list of a folder of ``n`` 1 MiB files: hashed once, then found in the cache."""
+    from pipeline.listing import current_listing
+
+    src = root / "src" / "mug"
+    src.mkdir(parents=True)
+    for i in range(n):
+        (src / f"m{i:05d}.obj").write_bytes(i.to_bytes(4, "little") * (1 << 18))
+    first, cached = [], []
+    for r in range(repeats):
+        s = BuildSettings(source=str(root / "src"), models_per_category=0, work_dir=root / f"lw{r}")
+        t = time.perf_counter()
+        current_listing(s, "mug")
+        first.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        current_listing(s, "mug")
+        cached.append(time.perf_counter() - t)
+    f, c = statistics.median(first), statistics.median(cached)
+    print(f"model list of {n} files x 1 MiB: first run (sha256 of each) median {1000 * f:.0f} ms, "
+          f"re-run (cached by size/mtime/inode) {1000 * c:.1f} ms ({f / c:.0f}x less)")
 
 
 if __name__ == "__main__":

@@ -90,11 +90,10 @@ def current_listing(s: BuildSettings, category: str) -> dict:
     cache_path = s.stage_dir("source") / category / HASHES
     cache = read_json(cache_path) if cache_path.exists() else {}
     before = dict(cache)
-    root = s.source_root
+    root = os.path.abspath(s.source)
     models = []
     for r in refs:
-        name = Path(os.path.abspath(r.path)).relative_to(root).as_posix() if root else str(r.path)
-        sha = content_key(Path(r.path), cache, name)
+        sha = content_key(Path(r.path), cache, os.path.relpath(os.path.abspath(r.path), root))
         models.append({"model_id": r.model_id, "work_id": work_id(r.model_id, sha), "path": str(r.path),
                        "source": r.source})
     if cache != before:

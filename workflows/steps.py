@@ -1,7 +1,10 @@
 """What each Luigi task does, as plain functions (no Luigi here), so they can be called and
 tested directly. Each batch step writes a small JSON listing its models' outcomes:
 
-``{"stage", "category", "batch", "models": [{"model_id", "status", "stage", "error"?}]}``
+``{"stage", "category", "batch", "models": [{"model_id", "work_id", "status", "stage", "error"?}]}``
+
+Steps take the category's model list (pipeline.listing): a batch is a slice of it, and models are
+handed to the stages under their work ids, which name their output folders.
 
 A model that failed upstream is carried forward with the stage where it failed, so the shard
 step sees every failure of the category with its reason.
