@@ -119,7 +119,14 @@ class Console:
         for event in (luigi.Event.DEPENDENCY_PRESENT, luigi.Event.DEPENDENCY_DISCOVERED):
             luigi.Task.event_handler(event)(con._seen)  # the root is the first task they name
         luigi.Task.event_handler(luigi.Event.FAILURE)(con._failed)
+        atexit.register(con._unclaimed)
         return con
+
+    def _unclaimed(self) -> None:
+        """No build root ran (e.g. `luigi --module workflows SourceList ...`): Luigi's log to stderr."""
+        if self.log_path is None and self.buffer.buffer:
+            self.buffer.setTarget(logging.StreamHandler(sys.stderr))
+            self.buffer.flush()
 
     def _seen(self, task: luigi.Task, *dependency) -> None:
         from workflows.tasks import _BuildRoot
