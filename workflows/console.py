@@ -124,7 +124,7 @@ class Console:
 
     def _unclaimed(self) -> None:
         """No build root ran (e.g. `luigi --module workflows SourceList ...`): Luigi's log to stderr."""
-        if self.log_path is None and self.buffer.buffer:
+        if self.log_path is None and self.buffer.buffer and not self.failures:
             self.buffer.setTarget(logging.StreamHandler(sys.stderr))
             self.buffer.flush()
 
@@ -213,9 +213,13 @@ class _ErrorLine(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         exc = record.exc_info[1] if record.exc_info else None
         if isinstance(exc, BuildParameterError):
-            self.console.write(f"error: {exc}", final=True)
+            line = f"error: {exc}"
         elif exc is not None and record.name == "luigi-interface" and "Uncaught" in record.getMessage():
-            self.console.write(f"error: {type(exc).__name__}: {exc}", final=True)
+            line = f"error: {type(exc).__name__}: {exc}"
+        else:
+            return
+        self.console.failures.append(line)
+        self.console.write(line, final=True)
 
 
 def summary(s: BuildSettings, categories: list[str]) -> str:
