@@ -81,6 +81,20 @@ def repair_mesh(
     raise ModelError(path, f"repair failed verification: {detail}")
 
 
+TINY_DIAGONAL = 1e-2
+
+
+def pre_scale(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """(centre, factor) mapping a model under TINY_DIAGONAL across to unit size for repair;
+    (None, 1) for every other model, which is repaired exactly as it is."""
+    used = vertices[np.unique(faces)]
+    lo, hi = used.min(axis=0), used.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    if diag >= TINY_DIAGONAL:
+        return None, 1.0
+    return (lo + hi) / 2.0, diag
+
+
 def _read_sidecar(path: Path) -> dict | None:
     """The procedural generator's sidecar (part labels, cuboids, defects) if the source has one."""
     side = path.with_suffix(".json")
@@ -123,12 +137,17 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
 
     # The Manifold octree seed is keyed like every other random choice (int32 range for the C++).
     wt_seed = derive_seed(settings.seed, "prepare-watertight", ref.category, ref.model_id) % (2**31 - 1)
-    mesh, repair = repair_mesh(path, vertices, faces, settings, wt_seed, timings)
+    # Manifold's tolerances are absolute: a model under ~1e-3 units across (a part in km, a CAD
+    # export in mm read as m) is repaired at unit size, and the pre-scale folded into the record.
+    c0, k0 = pre_scale(vertices, faces)
+    mesh, repair = repair_mesh(path, vertices if c0 is None else (vertices - c0) / k0, faces, settings,
+                               wt_seed, timings)
 
     t = time.perf_counter()
-    center, scale = unit_sphere_transform(mesh.vertices)
+    c1, s1 = unit_sphere_transform(mesh.vertices)
+    center, scale = (c1, s1) if c0 is None else (c0 + c1 * k0, s1 * k0)
     # Quantize to float32 (what the PLY stores) before sampling so samples lie on the stored mesh.
-    norm_v = apply_transform(mesh.vertices, center, scale).astype(np.float32).astype(np.float64)
+    norm_v = apply_transform(mesh.vertices, c1, s1).astype(np.float32).astype(np.float64)
     final = trimesh.Trimesh(norm_v, mesh.faces, process=False)
     timings["normalize"] = time.perf_counter() - t
 

@@ -25,3 +25,11 @@ class PrepareSettings:
     # When the repaired mesh fails verification, retry at resolution / 2 this many times (a
     # coarser envelope fuses nearly-touching parts and decimates less).
     fallback_attempts: int = 2
+
+    def __post_init__(self) -> None:
+        # out-of-range values would record every model as bad input instead of stopping the build
+        for name in ("resolution", "max_faces", "n_samples", "max_input_faces", "max_input_bytes", "max_bodies"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not self.max_abs_coordinate > 0 or not 0.0 <= self.min_component_fraction < 1.0 or self.fallback_attempts < 0:
+            raise ValueError("max_abs_coordinate must be > 0, min_component_fraction in [0, 1), fallback_attempts >= 0")

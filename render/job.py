@@ -9,6 +9,7 @@ from pipeline.atomic import read_json, write_json
 from render.settings import RenderSettings
 
 PROGRESS_PREFIX = "@@render-progress "
+PARENT_ENV = "SKETCH_RENDER_PARENT"  # pid of the process that started the worker
 
 
 def settings_from_dict(d: dict) -> RenderSettings:

@@ -25,7 +25,7 @@ from pipeline.errors import ModelError
 from pipeline.layout import model_dir, read_record, write_failed, write_ok
 from pipeline.sheets import encode_png
 from render import cameras
-from render.job import PROGRESS_PREFIX, read_job
+from render.job import PARENT_ENV, PROGRESS_PREFIX, read_job
 from render.settings import RenderSettings
 
 
@@ -164,7 +164,32 @@ def run_job(job_path: Path) -> int:
     return 0
 
 
+def die_with_parent() -> None:
+    """End this worker when the process that started it dies (kill -9 included), so no orphan
+    keeps rendering into the work folder: Linux's PR_SET_PDEATHSIG, else a watchdog thread."""
+    expected = int(os.environ.get(PARENT_ENV, "0")) or os.getppid()
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, signal.SIGKILL, 0, 0, 0) != 0:  # 1 = PR_SET_PDEATHSIG
+            raise OSError(ctypes.get_errno(), "prctl")
+    except (OSError, AttributeError):
+        import threading
+
+        def watch() -> None:
+            while os.getppid() == expected:
+                time.sleep(1.0)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != expected:  # the parent died before the line above took effect
+        os._exit(1)
+
+
 def main(argv: list[str] | None = None) -> int:
+    die_with_parent()
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
         print("usage: python -m render.worker JOB.json", file=sys.stderr)

@@ -183,8 +183,11 @@ def test_batch_skips_finished_models(tmp_path):
 
 def test_unexpected_exception_is_recorded(tmp_path):
     src = _write(tmp_path, "a.obj", trimesh.creation.box())
-    # An impossible setting makes the sampler raise a plain ValueError deep inside trimesh/numpy.
-    records = prepare_batch([_ref(src)], tmp_path / "stage", PrepareSettings(resolution=2000, n_samples=-1))
+    # An impossible setting makes the sampler raise a plain ValueError deep inside trimesh/numpy
+    # (set past PrepareSettings' own check, which a build runs before anything else).
+    settings = PrepareSettings(resolution=2000)
+    object.__setattr__(settings, "n_samples", -1)
+    records = prepare_batch([_ref(src)], tmp_path / "stage", settings)
     assert records[0]["status"] == "failed"
     assert "Error" in records[0]["error"]["reason"]
 
