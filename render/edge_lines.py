@@ -33,7 +33,6 @@ SILHOUETTE, BORDER, CREASE = 0, 1, 2
 NATURE_NAMES = ("silhouette", "border", "crease")
 
 _VISIBLE_SLACK = 2e-3  # occlusion rays stop this fraction short of the sample (depth precision)
-_CANDIDATES = 6        # nearest other run ends considered for joining at each run end
 
 
 class MeshLines:
@@ -107,14 +106,30 @@ class MeshLines:
         edge_of = np.repeat(np.arange(len(edges)), n_seg + 1)
         t = (np.arange(start[-1]) - start[edge_of]) / n_seg[edge_of]
         pts = self.vertices[a][edge_of] * (1.0 - t)[:, None] + self.vertices[b][edge_of] * t[:, None]
-        seen = self.visible(view, pts)
+        # edges meeting at a vertex sample it once each: cast one ray per vertex
+        at_vertex = (t == 0.0) | (t == 1.0)
+        vid = np.where(t == 0.0, a[edge_of], b[edge_of])[at_vertex]
+        uniq, inv = np.unique(vid, return_inverse=True)
+        inner = np.flatnonzero(~at_vertex)
+        hits = self.visible(view, np.concatenate([self.vertices[uniq], pts[inner]]))
+        seen = np.empty(len(pts), bool)
+        seen[at_vertex] = hits[:len(uniq)][inv]
+        seen[inner] = hits[len(uniq):]
         uv = project(view.projection, pts)
         chains = _chain(edges, nature, start, seen, uv, s.join_gap_px)
         if s.min_stroke_px > 0:
             chains = [c for c in chains if _length(c[0]) >= s.min_stroke_px]
-        return [typed_stroke(np.round(p, 4).tolist(),
-                             {NATURE_NAMES[k]: int(c) for k, c in enumerate(np.bincount(kinds, minlength=3)) if c})
-                for p, kinds in chains]
+        if not chains:
+            return []
+        # rounded and typed in one go: points per nature per stroke from a cumulative count
+        sizes = np.array([len(p) for p, _ in chains])
+        flat = np.round(np.concatenate([p for p, _ in chains]), 4).tolist()
+        kinds = np.concatenate([k for _, k in chains])
+        ends = np.cumsum(sizes)
+        counts = np.diff(np.vstack([np.zeros(3, np.int64),
+                                    np.cumsum(kinds[:, None] == np.arange(3), axis=0)[ends - 1]]), axis=0).tolist()
+        return [typed_stroke(flat[e - n:e], {NATURE_NAMES[k]: c for k, c in enumerate(cnt) if c})
+                for e, n, cnt in zip(ends.tolist(), sizes.tolist(), counts)]
 
     def draw(self, view: View) -> tuple[np.ndarray, list[dict]]:
         """The view's drawing (uint8 gray, black lines on white) and its strokes."""
@@ -127,18 +142,16 @@ def _edge_topology(faces: np.ndarray, face_ids: np.ndarray) -> tuple[np.ndarray,
     """Pairs of faces sharing an edge (edges of exactly two faces), those edges, and border edges
     (one face). Edges of three or more faces (non-manifold) pair their faces in index order."""
     e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    owner = np.tile(face_ids, 3)
-    order = np.lexsort((owner, e[:, 1], e[:, 0]))
-    e, owner = e[order], owner[order]
-    new = np.r_[True, (e[1:] != e[:-1]).any(axis=1)]
-    group = np.cumsum(new) - 1
-    count = np.bincount(group)
-    first = np.flatnonzero(new)
-    border = e[first[count == 1]]
+    code = e[:, 0] * (int(faces.max(initial=0)) + 1) + e[:, 1]
+    owner = np.repeat(face_ids[None], 3, axis=0).ravel()
+    order = np.argsort(code, kind="stable")  # stable: faces of one edge stay in index order
+    code, e, owner = code[order], e[order], owner[order]
+    new = np.r_[True, code[1:] != code[:-1]]
+    single = new & np.r_[new[1:], True]
     # consecutive members of one edge's group form its pairs (a manifold edge: exactly one pair)
     same = ~new[1:]
     pairs = np.stack([owner[:-1][same], owner[1:][same]], axis=1)
-    return pairs, e[1:][same], border
+    return pairs, e[1:][same], e[single]
 
 
 def _runs(edges: np.ndarray, start: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,32 +191,40 @@ def _chain(edges: np.ndarray, nature: np.ndarray, start: np.ndarray, seen: np.nd
     end_uv = uv[end_idx]
     out_dir = end_uv - uv[inner_idx]
     out_dir /= np.maximum(np.linalg.norm(out_dir, axis=1), 1e-12)[:, None]
-    # candidates: each end's few nearest ends (thin parts crowd hundreds of ends into a pixel)
-    _, near = cKDTree(end_uv).query(end_uv, k=min(_CANDIDATES + 1, 2 * n), distance_upper_bound=max(gap_px, 1e-9))
-    near = near.reshape(2 * n, -1)
-    mine = np.repeat(np.arange(2 * n), near.shape[1])
-    near = near.ravel()
-    keep = (near < 2 * n) & (mine // 2 != near // 2)
-    lo, hi = np.minimum(mine[keep], near[keep]), np.maximum(mine[keep], near[keep])
-    code = np.unique(lo * (2 * n) + hi)
-    pairs = np.stack([code // (2 * n), code % (2 * n)], axis=1)
+    # an end at its edge's first/last sample sits on that mesh vertex; others inside the edge
+    e = edge_of_run
+    vert = np.stack([np.where(run_start == start[e], edges[e, 0], -1),
+                     np.where(run_end == start[e + 1] - 1, edges[e, 1], -1)], axis=1).ravel()
+    link = np.full(2 * n, -1, np.int64)
+    # ends sharing a vertex: pairs meet at once; three or more pair up straightest first
+    on_v = np.flatnonzero(vert >= 0)
+    on_v = on_v[np.argsort(vert[on_v], kind="stable")]
+    v_sorted = vert[on_v]
+    head = np.r_[True, v_sorted[1:] != v_sorted[:-1]]
+    size = np.diff(np.r_[np.flatnonzero(head), len(on_v)])
+    group_size = np.repeat(size, size)
+    two = on_v[group_size == 2].reshape(-1, 2)
+    link[two[:, 0]], link[two[:, 1]] = two[:, 1], two[:, 0]
+    cand = [_pairs_within_groups(on_v, np.repeat(np.arange(len(size)), size), int(size.max(initial=0)))]
+    # ends left free: join across gaps of at most gap_px
+    free = np.flatnonzero(link < 0)
+    if gap_px > 0 and len(free) > 1:
+        near = cKDTree(end_uv[free]).query_pairs(gap_px, output_type="ndarray")
+        cand.append(free[near])
+    pairs = np.concatenate(cand)
+    pairs = pairs[pairs[:, 0] // 2 != pairs[:, 1] // 2]
     if len(pairs):
         dist = np.linalg.norm(end_uv[pairs[:, 0]] - end_uv[pairs[:, 1]], axis=1)
         # a smooth continuation: the two ends point in opposite directions
         straight = -np.einsum("ij,ij->i", out_dir[pairs[:, 0]], out_dir[pairs[:, 1]])
-        shared = dist < 1e-9
+        shared = vert[pairs[:, 0]] >= 0
+        shared &= vert[pairs[:, 0]] == vert[pairs[:, 1]]
         ok = shared | (straight >= math.cos(math.radians(max_turn_deg)))
         pairs, dist, straight = pairs[ok], np.where(shared[ok], 0.0, dist[ok]), straight[ok]
         order = np.lexsort((pairs[:, 1], pairs[:, 0], -straight, dist))
         pairs = pairs[order]
-    link = np.full(2 * n, -1, np.int64)
-    # ends in a single candidate pair (most: a vertex two runs share) match at once; the rest
-    # greedily, best pair first
-    uses = np.bincount(pairs.ravel(), minlength=2 * n)
-    sole = (uses[pairs[:, 0]] == 1) & (uses[pairs[:, 1]] == 1)
-    link[pairs[sole, 0]], link[pairs[sole, 1]] = pairs[sole, 1], pairs[sole, 0]
     link_l = link.tolist()
-    for a, b in pairs[~sole].tolist():
+    for a, b in pairs.tolist():  # greedy matching, best pair first
         if link_l[a] < 0 and link_l[b] < 0:
             link_l[a], link_l[b] = b, a
 
@@ -230,6 +251,15 @@ def _chain(edges: np.ndarray, nature: np.ndarray, start: np.ndarray, seen: np.nd
                 entry = nxt
             chains.append(seq)
     return _assemble(chains, run_start, run_end, uv, nature[edge_of_run])
+
+
+def _pairs_within_groups(members: np.ndarray, group: np.ndarray, largest: int) -> np.ndarray:
+    """Every pair of members of the same group (``group`` sorted, groups of up to ``largest``)."""
+    out = [np.zeros((0, 2), np.int64)]
+    for d in range(1, largest):
+        same = np.flatnonzero(group[d:] == group[:-d])
+        out.append(np.stack([members[same], members[same + d]], axis=1))
+    return np.concatenate(out)
 
 
 def _assemble(chains: list[list[int]], run_start: np.ndarray, run_end: np.ndarray, uv: np.ndarray,

@@ -24,27 +24,28 @@ from render.settings import RenderSettings
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("airplane", "car", "mug")
 VIEWS = 2
+MIXED = "mixed"  # one category folder holding a model of each category
 SEED = 3
 
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    """One prepared model per category, drawn by both backends at the default 256²."""
+    """One prepared model per category, drawn by both backends at the default 256² (one batch
+    per backend: a single Blender start)."""
     from pipeline.prepare import PrepareSettings, prepare_batch
     from pipeline.sources import list_models
 
     work = tmp_path_factory.mktemp("backends")
-    out = {}
+    items = []
     for cat in CATEGORIES:
         refs = list_models("procedural", cat, 1, 0, work)
         rec = prepare_batch(refs, work / "prepare", PrepareSettings())[0]
         assert rec["status"] == "ok", rec
-        items = [(refs[0].model_id, work / "prepare" / cat / refs[0].model_id / "mesh.ply")]
-        for backend in ("freestyle", "embree"):
-            recs = render_batch(cat, items, work / backend, RenderSettings(views=VIEWS, backend=backend), SEED)
-            assert recs[0]["status"] == "ok", recs[0]
-        out[cat] = (items, work / "freestyle" / cat / items[0][0], work / "embree" / cat / items[0][0])
-    return work, out
+        items.append((f"{cat}_{refs[0].model_id}", work / "prepare" / cat / refs[0].model_id / "mesh.ply"))
+    for backend in ("freestyle", "embree"):
+        recs = render_batch(MIXED, items, work / backend, RenderSettings(views=VIEWS, backend=backend), SEED)
+        assert [r["status"] for r in recs] == ["ok"] * len(items), recs
+    return items, {mid: (work / "freestyle" / MIXED / mid, work / "embree" / MIXED / mid) for mid, _ in items}
 
 
 def strokes_of(folder: Path) -> list[list[np.ndarray]]:
@@ -65,7 +66,7 @@ def test_default_backend_is_freestyle_and_keys_differ() -> None:
 
 def test_same_files_and_formats(rendered) -> None:
     _, models = rendered
-    for cat, (_, fs, em) in models.items():
+    for cat, (fs, em) in models.items():
         assert sorted(p.name for p in fs.iterdir()) == sorted(p.name for p in em.iterdir())
         assert (fs / "cameras.json").read_bytes() == (em / "cameras.json").read_bytes()
         for i in range(VIEWS):
@@ -80,7 +81,7 @@ def test_same_files_and_formats(rendered) -> None:
 
 def test_embree_strokes_match_freestyle(rendered) -> None:
     _, models = rendered
-    for cat, (_, fs, em) in models.items():
+    for cat, (fs, em) in models.items():
         for i, (ref, got) in enumerate(zip(strokes_of(fs), strokes_of(em))):
             score = stroke_scores(got, ref, 256, tol=2.0)
             assert score["f1"] >= 0.95, (cat, i, score)
@@ -92,12 +93,12 @@ def test_embree_strokes_match_freestyle(rendered) -> None:
 
 
 def test_embree_deterministic(rendered, tmp_path) -> None:
-    _, models = rendered
-    for cat, (items, _, em) in models.items():
-        render_batch(cat, items, tmp_path, RenderSettings(views=VIEWS, backend="embree"), SEED)
-        again = tmp_path / cat / items[0][0]
+    items, models = rendered
+    render_batch(MIXED, items, tmp_path, RenderSettings(views=VIEWS, backend="embree"), SEED)
+    for mid, (_, em) in models.items():
+        again = tmp_path / MIXED / mid
         for name in ["strokes.json", "cameras.json"] + [f"view_{i:02d}.png" for i in range(VIEWS)]:
-            assert (again / name).read_bytes() == (em / name).read_bytes(), (cat, name)
+            assert (again / name).read_bytes() == (em / name).read_bytes(), (mid, name)
 
 
 def test_draw_strokes_width() -> None:
