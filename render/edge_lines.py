@@ -99,9 +99,9 @@ class MeshLines:
             return []
         from render.cameras import project
 
-        uv_v = project(view.projection, self.vertices)
         a, b = edges[:, 0], edges[:, 1]
-        n_seg = np.maximum(1, np.ceil(np.linalg.norm(uv_v[b] - uv_v[a], axis=1)).astype(np.int64))
+        uv_ab = project(view.projection, self.vertices[edges.ravel()]).reshape(-1, 2, 2)
+        n_seg = np.maximum(1, np.ceil(np.linalg.norm(uv_ab[:, 1] - uv_ab[:, 0], axis=1)).astype(np.int64))
         start = np.concatenate([[0], np.cumsum(n_seg + 1)])
         edge_of = np.repeat(np.arange(len(edges)), n_seg + 1)
         t = (np.arange(start[-1]) - start[edge_of]) / n_seg[edge_of]
@@ -146,8 +146,8 @@ def _edge_topology(faces: np.ndarray, face_ids: np.ndarray) -> tuple[np.ndarray,
     owner = np.repeat(face_ids[None], 3, axis=0).ravel()
     order = np.argsort(code, kind="stable")  # stable: faces of one edge stay in index order
     code, e, owner = code[order], e[order], owner[order]
-    new = np.r_[True, code[1:] != code[:-1]]
-    single = new & np.r_[new[1:], True]
+    new = np.concatenate(([True], code[1:] != code[:-1]))
+    single = new & np.concatenate((new[1:], [True]))
     # consecutive members of one edge's group form its pairs (a manifold edge: exactly one pair)
     same = ~new[1:]
     pairs = np.stack([owner[:-1][same], owner[1:][same]], axis=1)
@@ -158,9 +158,9 @@ def _runs(edges: np.ndarray, start: np.ndarray, seen: np.ndarray) -> tuple[np.nd
     """First and last sample index of every run of two or more consecutive visible samples
     within one edge."""
     edge_of = np.repeat(np.arange(len(edges)), np.diff(start))
-    last_of_edge = np.r_[edge_of[1:] != edge_of[:-1], True]
-    first_of_edge = np.r_[True, last_of_edge[:-1]]
-    run_start = np.flatnonzero(seen & (first_of_edge | ~np.r_[True, seen[:-1]]))
+    last_of_edge = np.concatenate((edge_of[1:] != edge_of[:-1], [True]))
+    first_of_edge = np.concatenate(([True], last_of_edge[:-1]))
+    run_start = np.flatnonzero(seen & (first_of_edge | ~np.concatenate(([True], seen[:-1]))))
     # a run ends at the first hidden sample after its start (exclusive) or its edge's last sample
     stop = np.flatnonzero(~seen | last_of_edge)
     k = stop[np.searchsorted(stop, run_start)]
@@ -200,8 +200,8 @@ def _chain(edges: np.ndarray, nature: np.ndarray, start: np.ndarray, seen: np.nd
     on_v = np.flatnonzero(vert >= 0)
     on_v = on_v[np.argsort(vert[on_v], kind="stable")]
     v_sorted = vert[on_v]
-    head = np.r_[True, v_sorted[1:] != v_sorted[:-1]]
-    size = np.diff(np.r_[np.flatnonzero(head), len(on_v)])
+    head = np.concatenate(([True], v_sorted[1:] != v_sorted[:-1]))
+    size = np.diff(np.append(np.flatnonzero(head), len(on_v)))
     group_size = np.repeat(size, size)
     two = on_v[group_size == 2].reshape(-1, 2)
     link[two[:, 0]], link[two[:, 1]] = two[:, 1], two[:, 0]
@@ -272,7 +272,8 @@ def _assemble(chains: list[list[int]], run_start: np.ndarray, run_end: np.ndarra
     first_i = np.where(fwd, run_start[r], run_end[r])
     last_i = np.where(fwd, run_end[r], run_start[r])
     chain_first = np.zeros(len(entries), bool)
-    chain_first[np.r_[0, np.cumsum(n_per_chain)[:-1]]] = True
+    first_entry = np.cumsum(n_per_chain) - n_per_chain
+    chain_first[first_entry] = True
     drop = np.zeros(len(entries), np.int64)
     same = (uv[first_i[1:]] == uv[last_i[:-1]]).all(axis=1)
     drop[1:] = same & ~chain_first[1:]
@@ -281,7 +282,7 @@ def _assemble(chains: list[list[int]], run_start: np.ndarray, run_end: np.ndarra
     offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) + drop[rep]
     idx = np.where(fwd[rep], first_i[rep] + offset, first_i[rep] - offset)
     points, kinds = uv[idx], run_nature[r][rep]
-    cuts = np.cumsum(np.add.reduceat(count, np.r_[0, np.cumsum(n_per_chain)[:-1]]))[:-1]
+    cuts = np.cumsum(np.add.reduceat(count, first_entry))[:-1]
     return list(zip(np.split(points, cuts), np.split(kinds, cuts)))
 
 
