@@ -1,7 +1,7 @@
 """Render benchmark: seconds per view (median) at ~2k, 20k and 200k triangles, and the Blender
 start-up cost paid once per batch.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_render.py [--size 256] [--models 2]
+    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_render.py [--size 256] [--views 8] [--backend embree]
 
 Meshes: a normalized UV sphere (one smooth silhouette) and a procedural car prepared by the
 prepare stage and subdivided to the target size (many silhouette, border and crease lines).
@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from render.batch import render_batch  # noqa: E402
 from render.sample_meshes import normalized, sphere_with_faces, write_ply  # noqa: E402
-from render.settings import RenderSettings  # noqa: E402
+from render.settings import BACKENDS, RenderSettings  # noqa: E402
 
 TARGETS = (2_000, 20_000, 200_000)
 
@@ -64,8 +64,10 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--flat", action="store_true", help="flat shading (smooth_shading=False)")
+    ap.add_argument("--backend", default="freestyle", choices=BACKENDS)
     args = ap.parse_args()
-    settings = RenderSettings(image_size=args.size, views=args.views, smooth_shading=not args.flat)
+    settings = RenderSettings(image_size=args.size, views=args.views, smooth_shading=not args.flat,
+                              backend=args.backend)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         car = car_mesh(work)
@@ -76,9 +78,9 @@ def main() -> int:
                 items.append((f"car_{n}", write_ply(subdivided_to(car, n), work / "in" / f"car_{n}.ply")))
             items_by_target[n] = items
 
-        # start-up: launch → "blender ready" progress message, one batch per target size
+        # start-up: launch → the worker's "... ready in" progress message, one batch per target size
         startups = []
-        print(f"image {args.size}², {args.views} views per model, threads={settings.threads},"
+        print(f"backend {settings.backend}, image {args.size}², {args.views} views per model, threads={settings.threads},"
               f" smooth_shading={settings.smooth_shading}")
         for n, items in items_by_target.items():
             t0 = time.perf_counter()
@@ -86,7 +88,7 @@ def main() -> int:
             load_before = os.getloadavg()[0]
 
             def progress(done, total, message, marks=marks):
-                if "blender ready" in message:
+                if " ready in " in message:
                     marks.append(time.perf_counter() - t0)
                     print(f"  worker: {message}")
 
@@ -100,7 +102,7 @@ def main() -> int:
                       f" wall, {statistics.median(cpu):.3f} s/view CPU (min {min(cpu):.3f}, max {max(cpu):.3f}),"
                       f" load {rec['timings']['load_s']:.3f} s, strokes/view {np.mean(rec['n_strokes']):.0f}")
             print(f"  batch wall {wall:.2f} s (1-min load average before: {load_before:.1f} on {os.cpu_count()} cores)")
-        print(f"start-up per batch (launch → Blender ready): median {statistics.median(startups):.2f} s")
+        print(f"start-up per batch (launch → worker ready): median {statistics.median(startups):.2f} s")
     return 0
 
 

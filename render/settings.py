@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 RIGS = ("random", "front_side_top")
+BACKENDS = ("freestyle", "embree")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -16,6 +17,7 @@ class RenderSettings:
     from ``elevation_range``; rig "front_side_top": three fixed cameras (``views`` is ignored).
     """
 
+    backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
     views: int = 8
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
@@ -35,6 +37,8 @@ class RenderSettings:
     startup_timeout_s: float = 60.0
 
     def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.rig not in RIGS:
             raise ValueError(f"rig must be one of {RIGS}, got {self.rig!r}")
         if self.image_size < 8 or self.views < 1:
