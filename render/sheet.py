@@ -77,7 +77,7 @@ def render_procedural(work_dir: Path, categories: list[str], per_category: int, 
                       settings: RenderSettings) -> Path:
     """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
     from pipeline.config import stage_key
-    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
     from pipeline.sources import list_models
     from render.batch import render_batch
 
@@ -87,7 +87,7 @@ def render_procedural(work_dir: Path, categories: list[str], per_category: int, 
     for cat in categories:
         refs = list_models("procedural", cat, per_category, seed, work_dir)
         prepare_batch(refs, work_dir / prep_key, prep_settings, progress=_print_progress)
-        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / "mesh.ply") for r in refs
+        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / LINE_MESH_FILE) for r in refs
                  if (read_record(work_dir / prep_key / cat / r.model_id) or {}).get("status") == "ok"]
         render_batch(cat, items, work_dir / render_key, settings, seed, progress=_print_progress)
     return work_dir / render_key

@@ -125,7 +125,9 @@ def render_step(s: BuildSettings, category: str, batch: int, progress: Progress 
 
     ok, failed = _upstream(s, "prepare", category, batch)
     prep = s.stage_dir("prepare")
-    items = [(mid, model_dir(prep, category, mid) / "mesh.ply") for mid in ok]
+    from pipeline.prepare import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
+
+    items = [(mid, model_dir(prep, category, mid) / LINE_MESH_FILE) for mid in ok]
     records: list[dict] = []
     crashes: list[str] = []
     for attempt in range(crash_retries + 1 if items else 0):
