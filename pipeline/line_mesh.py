@@ -13,7 +13,8 @@ normalization, cleaned of what makes Freestyle draw lines the object does not ha
   read as 180° creases and break smooth shading.
 
 Meshes above ``max_faces`` are decimated with a quadric that keeps borders and sharp edges
-(pymeshlab, planar-aware), so render time stays bounded. Holes are left open: their rims are
+(pymeshlab, planar-aware), so render time stays bounded; smaller ones have their long sliver
+faces split (see ``_split_long_edges``). Holes are left open: their rims are
 real borders of the source and are drawn as such.
 """
 
@@ -38,10 +39,33 @@ def line_mesh(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) > max_faces:
         mesh = _decimate_keeping_edges(mesh, max_faces)
+    else:
+        mesh = _split_long_edges(mesh, max_faces)
     # Consistent winding through shared edges, then each body turned outward (by signed volume,
     # meaningful also for nearly-closed parts); Freestyle's creases use the face normals.
     trimesh.repair.fix_normals(mesh, multibody=True)
     return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+
+
+# Longest edge allowed (model radius 1), tried in order while the face budget allows.
+MAX_EDGE_STEPS = (0.1, 0.2, 0.4)
+
+
+def _split_long_edges(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
+    """Midpoint-subdivide faces with long edges (the shape is unchanged, no new creases).
+
+    Freestyle's smooth silhouettes (zero crossings of the interpolated n·v) lose their visibility
+    on long sliver triangles, as CAD tessellations of revolved and lofted surfaces have: whole
+    stretches of a mug's outline vanished. Shorter edges fix it; the finest step that stays
+    within ``max_faces`` is used.
+    """
+    for max_edge in MAX_EDGE_STEPS:
+        if mesh.edges_unique_length.max(initial=0.0) <= max_edge:
+            return mesh
+        v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge, max_iter=8)
+        if len(f) <= max_faces:
+            return trimesh.Trimesh(v, f, process=True)
+    return mesh
 
 
 def _decimate_keeping_edges(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
