@@ -20,7 +20,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
     from pipeline.shapes import CATEGORIES
     from pipeline.sources import list_models
 
@@ -29,7 +29,7 @@ def prepared(tmp_path_factory):
     for cat in CATEGORIES:
         refs = list_models("procedural", cat, 1, 0, work)
         recs = prepare_batch(refs, work / "prepare", PrepareSettings())
-        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / "mesh.ply")
+        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / LINE_MESH_FILE)
                     for r, rec in zip(refs, recs) if rec["status"] == "ok"]
     return work, out
 
