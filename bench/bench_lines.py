@@ -88,6 +88,8 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
                 continue
             scores = model_scores(work / prep_key / cat / m, dirs, 180.0 - settings.crease_angle_deg)
             for name, s in scores.items():
+                rec = read_record(dirs[name])
+                s.faces, s.cpu_per_view = rec["mesh"]["n_faces"], statistics.median(rec["timings"]["views_cpu_s"])
                 results[cat][name].append(s)
             print(f"{cat}/{m}: " + ", ".join(f"{n} recall {s.recall:.3f} precision {s.precision:.3f}"
                                               for n, s in scores.items()), flush=True)
@@ -99,15 +101,18 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
 
 
 def table(results: dict) -> str:
-    lines = ["| category | models | recall before | recall after | precision before | precision after |",
+    """Medians per category: recall, precision, triangles drawn and render CPU s per view."""
+    lines = ["| category | models | recall before → after | precision before → after |"
+             " triangles before → after | CPU s/view before → after |",
              "|---|---:|---:|---:|---:|---:|"]
     for cat, by in results.items():
-        med = {n: (statistics.median(s.recall for s in by[n]), statistics.median(s.precision for s in by[n]))
-               for n in DRAWN if by[n]}
-        if not med:
+        if not by["after"]:
             continue
-        lines.append(f"| {cat} | {len(by['after'])} | {med['before'][0]:.3f} | {med['after'][0]:.3f} |"
-                     f" {med['before'][1]:.3f} | {med['after'][1]:.3f} |")
+        med = {n: [statistics.median(getattr(s, k) for s in by[n]) for k in ("recall", "precision", "faces", "cpu_per_view")]
+               for n in DRAWN}
+        b, a = med["before"], med["after"]
+        lines.append(f"| {cat} | {len(by['after'])} | {b[0]:.3f} → **{a[0]:.3f}** | {b[1]:.3f} → **{a[1]:.3f}** |"
+                     f" {b[2]:.0f} → {a[2]:.0f} | {b[3]:.3f} → {a[3]:.3f} |")
     return "\n".join(lines)
 
 

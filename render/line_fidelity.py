@@ -33,9 +33,11 @@ class ViewScore:
     sharp_hit: int       # ... within tol of ink
     ink_total: int       # ink pixels
     ink_hit: int         # ... within tol of a visible reference line
+    faces: int = 0       # bookkeeping for reports (not part of the score)
+    cpu_per_view: float = 0.0
 
     def __add__(self, other: "ViewScore") -> "ViewScore":
-        return ViewScore(*(a + b for a, b in zip(dataclasses.astuple(self), dataclasses.astuple(other))))
+        return ViewScore(*(a + b for a, b in zip(dataclasses.astuple(self)[:4], dataclasses.astuple(other)[:4])))
 
     @property
     def recall(self) -> float:
