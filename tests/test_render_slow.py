@@ -93,3 +93,30 @@ def test_fragment_joining_only_chains_captured_points(prepared, tmp_path):
         # every joined point is a captured point (nothing moved or invented)
         raw_pts = {tuple(p) for s in raw[i] for p in s["points"]}
         assert {tuple(p) for s in joined[i] for p in s["points"]} <= raw_pts
+
+
+def test_line_mesh_drawings_are_faithful_and_byte_identical(prepared, tmp_path):
+    """The car's line mesh drawn twice: same bytes; its source's sharp edges are inked and the
+    ink lies on the source's lines (bench/bench_lines.py measures this per category)."""
+    from pipeline.line_mesh import line_mesh
+    from pipeline.layout import read_record
+    from pipeline.mesh_io import load_mesh
+    from render.line_fidelity import ViewScore, score_view
+
+    work, items = prepared
+    s = RenderSettings(views=3)
+    for run in ("a", "b"):
+        render_batch("car", items["car"], tmp_path / run, s, seed=0)
+    mid = items["car"][0][0]
+    for name in ("view_00.png", "view_01.png", "view_02.png", "strokes.json", "cameras.json"):
+        assert (tmp_path / "a" / "car" / mid / name).read_bytes() == (tmp_path / "b" / "car" / mid / name).read_bytes()
+    rec = read_record(work / "prepare" / "car" / mid)
+    norm = rec["normalization"]
+    source = line_mesh(*load_mesh(rec["source"]["path"]), np.array(norm["center"]), norm["scale"], 1 << 62)
+    cams = read_json(tmp_path / "a" / "car" / mid / "cameras.json")["views"]
+    total = ViewScore(0, 0, 0, 0)
+    for i, cam in enumerate(cams):
+        gray = np.asarray(Image.open(tmp_path / "a" / "car" / mid / f"view_{i:02d}.png"))
+        total = total + score_view(source, cam, gray, 180.0 - s.crease_angle_deg)
+    assert total.sharp_total > 500
+    assert total.recall >= 0.9 and total.precision >= 0.95, (total.recall, total.precision)
