@@ -8,8 +8,9 @@ watertight envelope ``mesh.ply`` (what the render stage drew until it read ``lin
 "after" draws ``lines.ply``, the cleaned source surface. Both drawings are scored against the
 source mesh in the prepared frame (render.line_fidelity): sharp-edge recall (visible source
 edges turning more than the render crease threshold, share within 2 px of ink) and precision
-(share of ink within 2 px of a visible source contour, border or sharp edge). Medians over the
-models of each category. ``--sheet`` writes a contact sheet: per model a row "before" then a row
+(share of ink within 2 px of a visible source contour, border or sharp edge), and as a check
+the outline recall (visible source contours and borders within 2 px of ink). Medians over the
+models of each category, with the triangles drawn and the render CPU seconds per view. ``--sheet`` writes a contact sheet: per model a row "before" then a row
 "after", same views.
 """
 
@@ -92,6 +93,7 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
                 s.faces, s.cpu_per_view = rec["mesh"]["n_faces"], statistics.median(rec["timings"]["views_cpu_s"])
                 results[cat][name].append(s)
             print(f"{cat}/{m}: " + ", ".join(f"{n} recall {s.recall:.3f} precision {s.precision:.3f}"
+                                              f" outline {s.outline_recall:.3f}"
                                               for n, s in scores.items()), flush=True)
             for name, d in dirs.items():
                 views = sorted(d.glob("view_*.png"))
@@ -102,17 +104,17 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
 
 def table(results: dict) -> str:
     """Medians per category: recall, precision, triangles drawn and render CPU s per view."""
-    lines = ["| category | models | recall before → after | precision before → after |"
-             " triangles before → after | CPU s/view before → after |",
-             "|---|---:|---:|---:|---:|---:|"]
+    lines = ["| category | models | sharp-edge recall before → after | precision before → after |"
+             " outline recall before → after | triangles before → after | CPU s/view before → after |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for cat, by in results.items():
         if not by["after"]:
             continue
-        med = {n: [statistics.median(getattr(s, k) for s in by[n]) for k in ("recall", "precision", "faces", "cpu_per_view")]
+        med = {n: [statistics.median(getattr(s, k) for s in by[n]) for k in ("recall", "precision", "outline_recall", "faces", "cpu_per_view")]
                for n in DRAWN}
         b, a = med["before"], med["after"]
         lines.append(f"| {cat} | {len(by['after'])} | {b[0]:.3f} → **{a[0]:.3f}** | {b[1]:.3f} → **{a[1]:.3f}** |"
-                     f" {b[2]:.0f} → {a[2]:.0f} | {b[3]:.3f} → {a[3]:.3f} |")
+                     f" {b[2]:.3f} → {a[2]:.3f} | {b[3]:.0f} → {a[3]:.0f} | {b[4]:.3f} → {a[4]:.3f} |")
     return "\n".join(lines)
 
 

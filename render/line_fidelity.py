@@ -6,7 +6,9 @@ camera: its sharp edges (normals turning by more than ``turn_deg``), its occludi
 half pixel along its projection and kept where a z-buffer of the same mesh says it is visible.
 
 - recall: of the visible sharp-edge samples, the share within ``tol_px`` of ink;
-- precision: of the ink pixels, the share within ``tol_px`` of a visible reference sample.
+- precision: of the ink pixels, the share within ``tol_px`` of a visible reference sample;
+- outline recall (a check, not a goal): of the visible contour and border samples, the share
+  within ``tol_px`` of ink.
 
 Pure numpy (+ scipy's distance transform); no Blender.
 """
@@ -33,15 +35,23 @@ class ViewScore:
     sharp_hit: int       # ... within tol of ink
     ink_total: int       # ink pixels
     ink_hit: int         # ... within tol of a visible reference line
+    outline_total: int = 0  # visible contour and border samples
+    outline_hit: int = 0    # ... within tol of ink
     faces: int = 0       # bookkeeping for reports (not part of the score)
     cpu_per_view: float = 0.0
 
     def __add__(self, other: "ViewScore") -> "ViewScore":
-        return ViewScore(*(a + b for a, b in zip(dataclasses.astuple(self)[:4], dataclasses.astuple(other)[:4])))
+        return ViewScore(*(a + b for a, b in zip(dataclasses.astuple(self)[:6], dataclasses.astuple(other)[:6])))
 
     @property
     def recall(self) -> float:
         return self.sharp_hit / self.sharp_total if self.sharp_total else 1.0
+
+    @property
+    def outline_recall(self) -> float:
+        """Share of visible contours and borders inked (not a goal of the issue: a check that
+        smooth silhouettes are not lost)."""
+        return self.outline_hit / self.outline_total if self.outline_total else 1.0
 
     @property
     def precision(self) -> float:
@@ -130,4 +140,6 @@ def score_view(mesh: trimesh.Trimesh, camera: dict, gray: np.ndarray, turn_deg: 
         ref[np.floor(pts[:, 1]).astype(np.int64), np.floor(pts[:, 0]).astype(np.int64)] = True
     to_ref = ndimage.distance_transform_edt(~ref) if ref.any() else np.full(ink.shape, np.inf)
     ink_hit = int((to_ref[ink] <= tol_px).sum())
-    return ViewScore(len(sharp), sharp_hit, int(ink.sum()), ink_hit)
+    ou, ov = np.floor(others[:, 0]).astype(np.int64), np.floor(others[:, 1]).astype(np.int64)
+    outline_hit = int((to_ink[ov, ou] <= tol_px).sum())
+    return ViewScore(len(sharp), sharp_hit, int(ink.sum()), ink_hit, len(others), outline_hit)
