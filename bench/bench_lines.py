@@ -64,7 +64,7 @@ def model_scores(prep_dir: Path, render_dirs: dict[str, Path], turn_deg: float) 
 
 
 def run(source: str, categories: list[str], per_category: int, work: Path, settings: RenderSettings,
-        seed: int = 0) -> tuple[dict, list]:
+        seed: int = 0, sheet_per_category: int = 1) -> tuple[dict, list]:
     prep_settings = PrepareSettings()
     prep_key = stage_key("prepare", prep_settings)
     results: dict[str, dict[str, list[ViewScore]]] = {}
@@ -82,7 +82,7 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
             render_batch(cat, [(m, work / prep_key / cat / m / file) for m in ok], stages[name],
                          settings, seed, progress=_progress)
         results[cat] = {name: [] for name in DRAWN}
-        for m in ok:
+        for k, m in enumerate(ok):
             dirs = {name: stages[name] / cat / m for name in DRAWN}
             if any((read_record(d) or {}).get("status") != "ok" for d in dirs.values()):
                 print(f"{cat}/{m}: render failed", file=sys.stderr)
@@ -95,7 +95,7 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
             print(f"{cat}/{m}: " + ", ".join(f"{n} recall {s.recall:.3f} precision {s.precision:.3f}"
                                               f" outline {s.outline_recall:.3f}"
                                               for n, s in scores.items()), flush=True)
-            for name, d in dirs.items():
+            for name, d in dirs.items() if k < sheet_per_category else ():
                 views = sorted(d.glob("view_*.png"))
                 sheet_rows.append([(np.asarray(Image.open(p).convert("L")), f"{cat}/{m} {name} v{i}")
                                    for i, p in enumerate(views)])
@@ -128,10 +128,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--work", type=Path, default=Path("work/bench-lines"))
     ap.add_argument("--sheet", type=Path, default=None, help="contact sheet PNG: before and after rows per model")
+    ap.add_argument("--sheet-per-category", type=int, default=1, help="models per category on the sheet")
     args = ap.parse_args(argv)
     cats = args.categories or list_categories(args.source)
     settings = RenderSettings(views=args.views, image_size=args.size)
-    results, rows = run(args.source, cats, args.per_category, args.work, settings, args.seed)
+    results, rows = run(args.source, cats, args.per_category, args.work, settings, args.seed,
+                        args.sheet_per_category)
     print(f"\nsource {args.source}, {args.per_category} models per category, {args.views} views of"
           f" {args.size}², crease threshold {180.0 - settings.crease_angle_deg:.2f}° turn, tolerance 2 px;"
           " medians over models\n")
