@@ -32,11 +32,12 @@ from pipeline.layout import read_record  # noqa: E402
 from pipeline.line_mesh import line_mesh  # noqa: E402
 from pipeline.mesh_io import load_mesh  # noqa: E402
 from pipeline.prepare import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch  # noqa: E402
-from pipeline.sheets import contact_sheet, save_png  # noqa: E402
+from pipeline.sheets import save_png  # noqa: E402
 from pipeline.sources import list_categories, list_models  # noqa: E402
 from render.batch import render_batch  # noqa: E402
 from render.line_fidelity import ViewScore, score_view  # noqa: E402
 from render.settings import RenderSettings  # noqa: E402
+from render.sheet import sheet_of_rows  # noqa: E402
 
 DRAWN = {"before": MESH_FILE, "after": LINE_MESH_FILE}
 
@@ -139,11 +140,7 @@ def main(argv: list[str] | None = None) -> int:
           " medians over models\n")
     print(table(results))
     if args.sheet is not None and rows:
-        cols = max(len(r) for r in rows)
-        blank = np.full_like(rows[0][0][0], 255)
-        padded = [r + [(blank, "")] * (cols - len(r)) for r in rows]
-        save_png(args.sheet, contact_sheet([im for r in padded for im, _ in r],
-                                           [lab for r in padded for _, lab in r], cols=cols))
+        save_png(args.sheet, sheet_of_rows(rows))
         print(f"\nsheet: {args.sheet}")
     return 0
 

@@ -65,11 +65,15 @@ def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
             shown += 1
     if not any(rows):
         raise SystemExit(f"no rendered models under {stage_dir}")
-    # pad rows with blank tiles so each model starts a new row
+    return sheet_of_rows(rows)
+
+
+def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
+    """Contact sheet with one row per list of (image, label), padded with blank tiles."""
     cols = max(len(r) for r in rows)
-    blank = np.full_like(rows[0][0][0], 255)
+    blank = np.full_like(next(r for r in rows if r)[0][0], 255)
     images = [img for r in rows for img, _ in r + [(blank, "")] * (cols - len(r))]
-    labels = [lab for r in rows for _, lab in r + [(blank, "")] * (cols - len(r))]
+    labels = [lab for r in rows for _, lab in r + [("", "")] * (cols - len(r))]
     return contact_sheet(images, labels, cols=cols)
 
 
