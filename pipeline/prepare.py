@@ -3,8 +3,9 @@
 Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, lines.ply, samples.npy,
 record.json}``, record last, so a killed batch resumes where it stopped. ``mesh.ply`` is the
 watertight solid the samples lie on; ``lines.ply`` is the cleaned source surface in the same
-frame, which the renderer draws (pipeline.line_mesh: it keeps the source's sharp edges). ``prepare_batch`` is what the Luigi task
-calls; ``prepare_model`` does one model and raises ModelError for bad input.
+frame, which the renderer draws (pipeline.line_mesh: it keeps the source's sharp edges).
+``prepare_batch`` is what the Luigi task calls; ``prepare_model`` does one model and raises
+ModelError for bad input.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ import trimesh
 
 from pipeline.atomic import StorageError, write_npy
 from pipeline.errors import ModelError
-from pipeline.line_mesh import line_mesh
 from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.line_mesh import line_mesh
 from pipeline.mesh_checks import check_input, closed_surface_problems
 from pipeline.mesh_io import load_mesh, sha256_file, write_ply
 from pipeline.normalize import apply_transform, transform_box, unit_sphere_transform
@@ -40,7 +41,8 @@ METHOD = {
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
     "line_mesh": "source mesh under the same normalization, vertices merged, degenerate and duplicate"
-                 " faces removed, winding made consistent and outward per body (pipeline.line_mesh)",
+                 " faces removed, winding made consistent and outward per body, long slivers split, decimated"
+                 " keeping sharp edges above max_line_faces (pipeline.line_mesh)",
 }
 
 
