@@ -22,7 +22,7 @@ class PrepareSettings:
     # debris and dropped; every other body is kept (wheels, engines, caps are separate bodies in
     # real models). More than max_bodies remaining volumes is shattered input and fails.
     min_component_fraction: float = 0.01
-    max_bodies: int = 64
+    max_bodies: int = 32
     # The line mesh (the cleaned source surface the renderer draws) is decimated, edges kept,
     # above this many faces so a view stays within the render time target.
     max_line_faces: int = 20000

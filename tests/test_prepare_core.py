@@ -166,7 +166,7 @@ def test_bad_inputs_are_recorded_and_batch_completes(tmp_path):
         # The failure is on disk, so a re-run skips it rather than crashing again.
         assert read_record(tmp_path / "stage" / "test" / model_id)["status"] == "failed"
         assert not (tmp_path / "stage" / "test" / model_id / "mesh.ply").exists()
-    assert "70 separate volumes (max 64)" in by_id["shattered"]["error"]["reason"]
+    assert "70 separate volumes (max 32)" in by_id["shattered"]["error"]["reason"]
 
 
 def test_batch_skips_finished_models(tmp_path):
