@@ -4,7 +4,9 @@ start-up cost paid once per batch.
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_render.py [--size 256] [--views 8] [--backend embree]
 
 Meshes: a normalized UV sphere (one smooth silhouette) and a procedural car prepared by the
-prepare stage and subdivided to the target size (many silhouette, border and crease lines).
+prepare stage, both its watertight envelope (``car``, drawn until the render stage read
+lines.ply) and its line mesh (``carsrc``, drawn now), each subdivided or decimated to the target
+size (many silhouette, border and crease lines); their ratio is printed per size.
 Per-view times come from the worker's own record (scene update + render + PNG/stroke writing).
 """
 
@@ -46,17 +48,21 @@ def subdivided_to(mesh: trimesh.Trimesh, n_faces: int) -> trimesh.Trimesh:
     return normalized(mesh)
 
 
-def car_mesh(work: Path) -> trimesh.Trimesh | None:
+def car_meshes(work: Path) -> dict[str, trimesh.Trimesh]:
+    """A procedural car prepared by the prepare stage: ``car`` its watertight envelope (what the
+    render stage drew before it read lines.ply), ``carsrc`` its line mesh (what it draws now)."""
     try:
-        from pipeline.prepare import PrepareSettings, prepare_batch
+        from pipeline.prepare import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch
         from pipeline.sources import list_models
     except ImportError:
-        return None
+        return {}
     refs = list_models("procedural", "car", 1, 0, work)
     rec = prepare_batch(refs, work / "prepare", PrepareSettings())[0]
     if rec["status"] != "ok":
-        return None
-    return trimesh.load(work / "prepare" / "car" / refs[0].model_id / "mesh.ply", force="mesh", process=False)
+        return {}
+    folder = work / "prepare" / "car" / refs[0].model_id
+    return {name: trimesh.load(folder / file, force="mesh", process=False)
+            for name, file in (("car", MESH_FILE), ("carsrc", LINE_MESH_FILE))}
 
 
 def main() -> int:
@@ -70,12 +76,12 @@ def main() -> int:
                               backend=args.backend)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        car = car_mesh(work)
+        cars = car_meshes(work)
         items_by_target = {}
         for n in TARGETS:
             items = [(f"sphere_{n}", write_ply(sphere_with_faces(n), work / "in" / f"sphere_{n}.ply"))]
-            if car is not None:
-                items.append((f"car_{n}", write_ply(subdivided_to(car, n), work / "in" / f"car_{n}.ply")))
+            for name, car in cars.items():
+                items.append((f"{name}_{n}", write_ply(subdivided_to(car, n), work / "in" / f"{name}_{n}.ply")))
             items_by_target[n] = items
 
         # start-up: launch → the worker's "... ready in" progress message, one batch per target size
@@ -101,6 +107,9 @@ def main() -> int:
                 print(f"{mid:>14}: {rec['mesh']['n_faces']:>7} triangles  median {statistics.median(views):.3f} s/view"
                       f" wall, {statistics.median(cpu):.3f} s/view CPU (min {min(cpu):.3f}, max {max(cpu):.3f}),"
                       f" load {rec['timings']['load_s']:.3f} s, strokes/view {np.mean(rec['n_strokes']):.0f}")
+            cpu = {mid: statistics.median(rec["timings"]["views_cpu_s"]) for (mid, _), rec in zip(items, recs)}
+            if f"car_{n}" in cpu and f"carsrc_{n}" in cpu:
+                print(f"  line mesh / envelope CPU per view at {n}: {cpu[f'carsrc_{n}'] / cpu[f'car_{n}']:.2f}")
             print(f"  batch wall {wall:.2f} s (1-min load average before: {load_before:.1f} on {os.cpu_count()} cores)")
         print(f"start-up per batch (launch → worker ready): median {statistics.median(startups):.2f} s")
     return 0

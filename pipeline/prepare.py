@@ -1,8 +1,11 @@
 """Mesh preparation: source mesh → watertight, decimated, verified, unit-sphere mesh + samples.
 
-Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, samples.npy, record.json}``,
-record last, so a killed batch resumes where it stopped. ``prepare_batch`` is what the Luigi task
-calls; ``prepare_model`` does one model and raises ModelError for bad input.
+Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, lines.ply, samples.npy,
+record.json}``, record last, so a killed batch resumes where it stopped. ``mesh.ply`` is the
+watertight solid the samples lie on; ``lines.ply`` is the cleaned source surface in the same
+frame, which the renderer draws (pipeline.line_mesh: it keeps the source's sharp edges).
+``prepare_batch`` is what the Luigi task calls; ``prepare_model`` does one model and raises
+ModelError for bad input.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import trimesh
 from pipeline.atomic import StorageError, write_npy
 from pipeline.errors import ModelError
 from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.line_mesh import line_mesh
 from pipeline.mesh_checks import check_input, closed_surface_problems
 from pipeline.mesh_io import load_mesh, sha256_file, write_ply
 from pipeline.normalize import apply_transform, transform_box, unit_sphere_transform
@@ -26,15 +30,19 @@ from pipeline.sampling import sample_surface
 from pipeline.seeding import derive_seed, rng_for
 from pipeline.watertight import clean_solid, decimate, make_watertight
 
-__all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
+__all__ = ["LINE_MESH_FILE", "MESH_FILE", "PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
 MESH_FILE = "mesh.ply"
+LINE_MESH_FILE = "lines.ply"  # what the render stage draws
 SAMPLES_FILE = "samples.npy"
 METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
+    "line_mesh": "source mesh under the same normalization, vertices merged, degenerate and duplicate"
+                 " faces removed, winding made consistent and outward per body, long slivers split, decimated"
+                 " keeping sharp edges above max_line_faces (pipeline.line_mesh)",
 }
 
 
@@ -152,11 +160,16 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
     timings["normalize"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    lines = line_mesh(vertices, faces, center, scale, settings.max_line_faces)
+    timings["line_mesh"] = time.perf_counter() - t
+
+    t = time.perf_counter()
     samples = sample_surface(final, settings.n_samples, rng_for(settings.seed, "prepare", ref.category, ref.model_id))
     timings["sample"] = time.perf_counter() - t
 
     t = time.perf_counter()
     write_ply(out_dir / MESH_FILE, final.vertices, final.faces)
+    write_ply(out_dir / LINE_MESH_FILE, lines.vertices, lines.faces)
     write_npy(out_dir / SAMPLES_FILE, samples)
     timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
@@ -168,10 +181,12 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
         "normalization": {"center": center.tolist(), "scale": scale},
         "faces": {"input": int(len(faces)), "watertight": repair["watertight_faces"], "output": int(len(final.faces))},
         "vertices": {"input": int(len(vertices)), "output": int(len(final.vertices))},
+        "bodies": int(final.body_count),
+        "line_mesh": {"faces": int(len(lines.faces)), "vertices": int(len(lines.vertices))},
         "method": {**METHOD, "resolution": repair["resolution"], "attempts": repair["attempts"],
                    "rejected_attempts": repair["rejected"], "max_faces": settings.max_faces},
         "n_samples": int(len(samples)),
-        "files": {"mesh": MESH_FILE, "samples": SAMPLES_FILE},
+        "files": {"mesh": MESH_FILE, "line_mesh": LINE_MESH_FILE, "samples": SAMPLES_FILE},
         "settings": dataclasses.asdict(settings),
         "timings": {k: round(v, 4) for k, v in timings.items()},
     }

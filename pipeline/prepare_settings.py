@@ -18,10 +18,14 @@ class PrepareSettings:
     max_input_faces: int = 2_000_000
     max_input_bytes: int = 1 << 30
     max_abs_coordinate: float = 1e5
-    # Repair acceptance: components smaller than this fraction of the largest are debris; more
-    # than max_bodies remaining volumes fails verification.
+    # Repair acceptance: components smaller than this fraction of the largest (by area) are
+    # debris and dropped; every other body is kept (wheels, engines, caps are separate bodies in
+    # real models). More than max_bodies remaining volumes is shattered input and fails.
     min_component_fraction: float = 0.01
-    max_bodies: int = 1
+    max_bodies: int = 32
+    # The line mesh (the cleaned source surface the renderer draws) is decimated, edges kept,
+    # above this many faces so a view stays within the render time target.
+    max_line_faces: int = 20000
     # When the repaired mesh fails verification, retry at resolution / 2 this many times (a
     # coarser envelope fuses nearly-touching parts and decimates less).
     fallback_attempts: int = 2

@@ -16,6 +16,8 @@ def settings_from_dict(d: dict) -> RenderSettings:
     d = dict(d)
     if "elevation_range" in d:
         d["elevation_range"] = tuple(float(x) for x in d["elevation_range"])
+    if "edge_types" in d:
+        d["edge_types"] = tuple(d["edge_types"])
     return RenderSettings(**d)
 
 

@@ -33,4 +33,4 @@ def test_hung_render_batch_is_retried_then_recorded(tmp_path: Path) -> None:
     for f in cat["failed"]:
         assert f["stage"] == "render"
         assert "render worker timed out after 0.3 s and was killed" in f["reason"], f
-        assert f["path"].endswith("mesh.ply")
+        assert f["path"].endswith("lines.ply")  # the render stage draws the line mesh

@@ -119,7 +119,9 @@ def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = No
     category = lst["category"]
     ok, failed = _upstream(s, "prepare", lst, batch)
     prep = s.stage_dir("prepare")
-    items = [(m["work_id"], model_dir(prep, category, m["work_id"]) / "mesh.ply") for m in ok]
+    from pipeline.prepare import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
+
+    items = [(m["work_id"], model_dir(prep, category, m["work_id"]) / LINE_MESH_FILE) for m in ok]
     records: list[dict] = []
     crashes: list[str] = []
     for attempt in range(crash_retries + 1 if items else 0):
