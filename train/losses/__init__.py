@@ -5,7 +5,7 @@ Every term returns one value per batch item ``(B,)``; ``total_loss`` combines th
 ``LossWeights`` (paper values; weight 0 switches a term off).
 """
 
-from train.losses.chamfer import Matches, chamfer_loss, match_points, normal_alignment_loss
+from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.collision import (
     CollisionPairs,
     collision_loss,
@@ -20,6 +20,7 @@ from train.losses.weights import LossWeights
 __all__ = [
     "TERMS",
     "CollisionPairs",
+    "Groups",
     "LossWeights",
     "Matches",
     "chamfer_loss",
