@@ -117,17 +117,25 @@ class Objective:
 
 
 def _patch_point_incidence(template: Template) -> Tensor:
-    """(P, N) bool: which template points shape each patch (its curves' control points, through
-    sub-curves to their parents, and junction points on them)."""
+    """(P, N) bool: which template points a patch's geometry depends on (its curves' control
+    points, through sub-curves to their parents and junction points to their host curves)."""
+    from functools import cache
 
-    def curve_points(ci: int) -> set[int]:
+    from train.templates.format import JunctionPoint
+
+    @cache
+    def point_deps(pi: int) -> frozenset[int]:
+        p = template.points[pi]
+        return frozenset({pi}) | (curve_deps(p.curve) if isinstance(p, JunctionPoint) else frozenset())
+
+    @cache
+    def curve_deps(ci: int) -> frozenset[int]:
         c = template.curves[ci]
         if not c.is_sub:
-            return set(c.points)
-        return {c.start, c.end} | curve_points(c.parent)
+            return frozenset().union(*(point_deps(p) for p in c.points))
+        return point_deps(c.start) | point_deps(c.end) | curve_deps(c.parent)
 
     out = torch.zeros(template.num_patches, template.num_points, dtype=torch.bool)
     for pi, patch in enumerate(template.patches):
-        ids = set().union(*(curve_points(ci) for ci in patch.curves)) | template.patch_boundary_points(pi)
-        out[pi, sorted(ids)] = True
+        out[pi, sorted(frozenset().union(*(curve_deps(ci) for ci in patch.curves)))] = True
     return out

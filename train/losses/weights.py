@@ -19,7 +19,7 @@ class LossWeights:
 def template_weights(regularizers: dict[str, float], overrides: dict[str, float] | None = None) -> LossWeights:
     """The paper's weights with the regularizers a template file names (``Template.regularizers``;
     ``template_normal`` and ``symmetry`` are off unless named), then ``overrides`` (command line)."""
-    base = replace(LossWeights(), template_normal=0.0, symmetry=0.0, **regularizers)
+    base = replace(LossWeights(), **{"template_normal": 0.0, "symmetry": 0.0, **regularizers})
     names = {f.name for f in fields(LossWeights)}
     unknown = set(overrides or {}) - names
     if unknown:
