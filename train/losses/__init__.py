@@ -10,7 +10,6 @@ from train.losses.collision import (
     CollisionPairs,
     collision_loss,
     collision_pairs,
-    point_triangle_sqdist,
     unconnected_pairs,
 )
 from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
@@ -30,7 +29,6 @@ __all__ = [
     "loss_terms",
     "match_points",
     "normal_alignment_loss",
-    "point_triangle_sqdist",
     "symmetry_loss",
     "template_normal_loss",
     "total_loss",

@@ -76,7 +76,7 @@ def loss_terms(
     )
     terms["flat"] = flatness_loss(ev.points, st, ev.jacobian, valid) if weights.flat else zero
     terms["collision"] = (
-        collision_loss(patches, collision, weights.collision_eps, patch_mask=patch_mask) if weights.collision and collision is not None else zero
+        collision_loss(patches, collision, patch_mask=patch_mask) if weights.collision and collision is not None else zero
     )
     terms["template_normal"] = (
         template_normal_loss(ev.normals, template_normals.to(patches.dtype), ev.jacobian, valid)

@@ -10,10 +10,9 @@ class LossWeights:
     chamfer: float = 1.0
     normal: float = 0.008
     flat: float = 2.0
-    collision: float = 1e-5
+    collision: float = 1.0  # our L_coll is a penetration depth (docs/geometry.md), not the paper's indicator (1e-5)
     template_normal: float = 1e-4
     symmetry: float = 1.0
-    collision_eps: float = 1e-6  # ε of the smooth indicator, in squared-distance units
 
 
 def template_weights(regularizers: dict[str, float], overrides: dict[str, float] | None = None) -> LossWeights:
