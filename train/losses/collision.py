@@ -91,39 +91,68 @@ def _pack(pairs, keep_i, keep_j, grid) -> CollisionPairs:
     return CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
 
 
-def grid_edges(grid: int) -> Tensor:
-    """Unique edges ``(E, 2)`` of ``grid_triangulation(grid)`` (rows, columns, diagonals)."""
-    from train.geometry.triangulate import grid_triangulation
+def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
+    """Per grid cell: its 4 vertex ids ``(C, 4)`` (a, b, c, d counter-clockwise), its 5 edges as
+    vertex pairs ``(C, 5, 2)`` (4 sides + the a–c diagonal) and its 2 triangles' face ids ``(C, 2)``
+    in ``grid_triangulation(grid)``'s order."""
+    k = grid - 1
+    i_t, i_s = torch.meshgrid(torch.arange(k), torch.arange(k), indexing="ij")
+    a = (i_t * grid + i_s).reshape(-1)
+    quad = torch.stack([a, a + 1, a + grid + 1, a + grid], -1)
+    edges = quad[:, [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]]
+    faces = torch.stack([torch.arange(k * k), torch.arange(k * k) + k * k], -1)
+    return quad.to(device), edges.to(device), faces.to(device)
 
-    f = grid_triangulation(grid)
-    e = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).sort(-1).values
-    return torch.unique(e, dim=0)
 
+def _crossings(src: Tensor, keep_src: Tensor, tris: Tensor, keep_tris: Tensor, grid: int) -> Tensor:
+    """(pair, vertex a, vertex b, triangle) rows where the grid edge a–b of ``src (n, V, 3)`` passes
+    through a triangle of ``tris (n, F, 3, 3)`` (detached; kept edges and triangles only).
 
-def _crossings(src: Tensor, keep_src: Tensor, tris: Tensor, keep_tris: Tensor, edges: Tensor) -> Tensor:
-    """(pair, edge, triangle) triples where an edge of ``src (n, V, 3)`` passes through a
-    triangle ``tris (n, F, 3, 3)`` (detached; kept edges and triangles only)."""
-    a, b = src[:, edges[:, 0]], src[:, edges[:, 1]]  # (n, E, 3)
-    lo, hi = tris.amin(-2), tris.amax(-2)  # (n, F, 3)
-    elo, ehi = torch.minimum(a, b), torch.maximum(a, b)
-    cand = ((elo[:, :, None] <= hi[:, None]) & (ehi[:, :, None] >= lo[:, None])).all(-1)  # (n, E, F)
-    cand &= (keep_src[:, edges[:, 0]] & keep_src[:, edges[:, 1]])[:, :, None] & keep_tris[:, None, :]
-    n, e, f = cand.nonzero().unbind(-1)
+    Two levels: cell boxes of the two grids against each other, then the 5 edges of each
+    overlapping source cell against the 2 triangles of the target cell (unique rows)."""
+    quad, cell_edges, cell_faces = _cells(grid, src.device)
+    cs = src[:, quad]  # (n, C, 4, 3)
+    slo, shi = cs.amin(-2), cs.amax(-2)
+    ct = tris[:, cell_faces].flatten(2, 3)  # (n, C, 6, 3)
+    tlo, thi = ct.amin(-2), ct.amax(-2)
+    # cells inside the other grid's box first (cheap), then box against box for those pairs only
+    src_in = ((slo <= thi.amax(1, keepdim=True)) & (shi >= tlo.amin(1, keepdim=True))).all(-1)  # (n, C)
+    dst_in = ((tlo <= shi.amax(1, keepdim=True)) & (thi >= slo.amin(1, keepdim=True))).all(-1)
+    n, c_src, c_dst = (src_in[:, :, None] & dst_in[:, None, :]).nonzero().unbind(-1)
+    over = ((slo[n, c_src] <= thi[n, c_dst]) & (shi[n, c_src] >= tlo[n, c_dst])).all(-1)
+    n, c_src, c_dst = n[over], c_src[over], c_dst[over]
     if n.numel() == 0:
-        return torch.zeros((0, 3), dtype=torch.long, device=src.device)
+        return torch.zeros((0, 4), dtype=torch.long, device=src.device)
+    e = cell_edges[c_src]  # (h, 5, 2)
+    f = cell_faces[c_dst]  # (h, 2)
+    n_v, n_f = src.shape[1], tris.shape[1]
+    # an edge borders 2 cells: unique (pair, a, b, triangle) rows, through one int64 key each
+    key = ((n[:, None, None] * n_v + e[:, :, None, 0]) * n_v + e[:, :, None, 1]) * n_f + f[:, None, :]
+    key = torch.unique(key.reshape(-1))
+    f, key = key % n_f, key // n_f
+    vb, key = key % n_v, key // n_v
+    va, n = key % n_v, key // n_v
+    ok = keep_src[n, va] & keep_src[n, vb] & keep_tris[n, f]
+    n, va, vb, f = n[ok], va[ok], vb[ok], f[ok]
     t = tris[n, f]
-    pa, pb = a[n, e], b[n, e]
+    pa, pb = src[n, va], src[n, vb]
     normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
     da, db = ((pa - t[:, 0]) * normal).sum(-1), ((pb - t[:, 0]) * normal).sum(-1)
     through = da * db < 0  # strictly on both sides of the plane
-    # where the edge meets the plane: inside the triangle? (barycentric, on the triangle's own plane)
+    # where the edge meets the plane: inside the triangle? (edge functions on the triangle's plane)
     x = pa + (da / torch.where(through, da - db, torch.ones_like(da)))[:, None] * (pb - pa)
     inside = torch.ones_like(through)
     for k in range(3):
         u, v = t[:, k], t[:, (k + 1) % 3]
         inside &= (torch.linalg.cross(v - u, x - u, dim=-1) * normal).sum(-1) >= 0
     hit = through & inside
-    return torch.stack([n[hit], e[hit], f[hit]], -1)
+    return torch.stack([n[hit], va[hit], vb[hit], f[hit]], -1)
+
+
+def _kept_box(v: Tensor, keep: Tensor) -> tuple[Tensor, Tensor]:
+    """Bounding box ``(N, 3)`` of the kept vertices ``keep (N, V)`` of ``v (N, V, 3)``."""
+    k = keep[..., None]
+    return torch.where(k, v, torch.full_like(v, float("inf"))).amin(-2), torch.where(k, v, torch.full_like(v, -float("inf"))).amax(-2)
 
 
 def collision_loss(
@@ -138,7 +167,6 @@ def collision_loss(
         return out
     dev = patches.device
     verts, faces = triangulate_patches(patches, pairs.grid)  # (B, P, V, 3), (F, 3)
-    edges = grid_edges(pairs.grid).to(dev)
     pr = pairs.pairs.to(dev)
     keep_i, keep_j = pairs.keep_i.to(dev), pairs.keep_j.to(dev)
     with torch.no_grad():
@@ -148,6 +176,10 @@ def collision_loss(
             pm = patch_mask.to(dev)
             near &= pm[:, pr[:, 0]] & pm[:, pr[:, 1]]
         cand = near.nonzero()  # (N, 2): batch, pair
+        # then the boxes of the kept vertices only (bands along shared boundaries left out)
+        b, k = cand.unbind(-1)
+        (lo_i, hi_i), (lo_j, hi_j) = _kept_box(verts[b, pr[k, 0]], keep_i[k]), _kept_box(verts[b, pr[k, 1]], keep_j[k])
+        cand = cand[((lo_i <= hi_j) & (lo_j <= hi_i)).all(-1)]
     depth = patches.new_zeros(cand.shape[0])
     for start in range(0, cand.shape[0], chunk):
         b, k = cand[start : start + chunk].unbind(-1)
@@ -155,14 +187,14 @@ def collision_loss(
         for src, dst, k_src, k_dst in ((pr[k, 0], pr[k, 1], keep_i[k], keep_j[k]), (pr[k, 1], pr[k, 0], keep_j[k], keep_i[k])):
             pts, tris = verts[b, src], verts[b, dst][:, faces]  # (n, V, 3), (n, F, 3, 3)
             with torch.no_grad():
-                hit = _crossings(pts.detach(), k_src, tris.detach(), k_dst[:, faces].all(-1), edges)
+                hit = _crossings(pts.detach(), k_src, tris.detach(), k_dst[:, faces].all(-1), pairs.grid)
             if hit.shape[0] == 0:
                 continue
-            n, e, f = hit.unbind(-1)
+            n, va, vb, f = hit.unbind(-1)
             t = tris[n, f]
             normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
             unit = normal / normal.norm(dim=-1, keepdim=True).clamp_min(_TINY)
-            ends = pts[n[:, None], edges[e]]  # (h, 2, 3)
+            ends = torch.stack([pts[n, va], pts[n, vb]], 1)  # (h, 2, 3)
             signed = ((ends - t[:, None, 0]) * unit[:, None]).sum(-1)  # (h, 2)
             with torch.no_grad():  # which side of the triangle most of patch `src` lies on
                 all_sd = ((pts[n].detach() - t[:, None, 0].detach()) * unit[:, None].detach()).sum(-1)
