@@ -18,7 +18,7 @@ from train.losses import (
     total_loss,
     unconnected_pairs,
 )
-from train.metrics import count_intersecting_pairs
+from train.geometry.intersections import count_intersecting_pairs
 from train.nn_search import nearest_distances
 from train.templates import sphere24, sphere54
 from train.templates.format import Curve, FreePoint, Patch, Template
