@@ -1,5 +1,7 @@
 """Where a training step's time goes: data loading, encoder forward+backward, each loss term
-forward+backward. Medians over steps, one process, ``--threads`` torch threads.
+forward+backward. Medians over steps of CPU seconds (process time: on a shared machine the
+figure a single-threaded process would take alone), one process, ``--threads`` torch threads.
+Each term is timed on its own, so each includes evaluating the patches at the sample points.
 
 The network outputs are the template plus noise of ``--noise`` (unit-sphere frame), so the
 collision term sees the overlaps a model in training produces, not the crossing-free template.
@@ -45,12 +47,12 @@ def profile(dataset: str, category: str, template: str, steps: int, batch: int, 
     times: dict[str, list[float]] = {}
 
     def tick(name: str, t0: float) -> float:
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         times.setdefault(name, []).append(t1 - t0)
         return t1
 
     for _ in range(steps + 1):  # the first step warms up and is dropped
-        t = time.perf_counter()
+        t = time.process_time()
         b = next(loader)
         t = tick("data loading", t)
         params = model(b["images"], b["view_mask"])
@@ -91,7 +93,7 @@ def main() -> None:
             ds, cat = str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)), "knife"
         med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise)
     print(f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise}")
-    print("| part | median s/step | share |\n|---|---:|---:|")
+    print("| part | median CPU s/step | share |\n|---|---:|---:|")
     for k, v in med.items():
         print(f"| {k} | {v:.3f} | {100 * v / med['total']:.0f} % |")
 
