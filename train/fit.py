@@ -104,7 +104,7 @@ def validation_chamfer(model: SketchToPatches, loader, objective: Objective, dev
     st = objective.sample_st(None)
     for batch in loader:
         params = model(batch["images"].to(device), batch["view_mask"].to(device))
-        terms = objective.batch_terms(params, batch, st, weights)
+        terms = objective.batch_terms(params, batch, st, weights, grouped=False)
         total += float(terms["chamfer"].sum())
         count += params.shape[0]
     model.train(was_training)

@@ -91,11 +91,15 @@ class Objective:
         sym = self.sym.to(mask.device)
         return used[:, sym[:, 0]] & used[:, sym[:, 1]]
 
-    def batch_terms(self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights) -> dict[str, Tensor]:
-        """``terms`` for a loader batch: target points, patch mask and part groups from the batch."""
+    def batch_terms(
+        self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, grouped: bool = True
+    ) -> dict[str, Tensor]:
+        """``terms`` for a loader batch: target points, patch mask and (training: ``grouped``) part
+        groups from the batch. Metrics use ``grouped=False``: the plain L_Ch, comparable across
+        templates."""
         dev = params.device
         return self.terms(params, batch["points"].to(dev), st, self.patch_mask(batch["meta"], dev), weights,
-                          self.groups(batch, dev))  # fmt: skip
+                          self.groups(batch, dev) if grouped else None)  # fmt: skip
 
     def terms(
         self, params: Tensor, points: Tensor, st: Tensor, mask: Tensor | None, weights: LossWeights,
