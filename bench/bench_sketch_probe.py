@@ -34,13 +34,14 @@ def codes(model, dataset, category, split, parts, image_size):
         pts = b["points"][..., :3].numpy()
         ext = pts.max(1) - pts.min(1)
         has = np.array([[float(p in (m.get(PRESENT_PARTS) or [])) for p in parts] for m in b["meta"]]).reshape(len(ext), -1)
-        for v in range(b["images"].shape[1]):  # every view on its own: 4 samples per model
-            img = b["images"][:, v : v + 1]
+        for v in range(b["images"].shape[1]):  # every view on its own: up to 4 samples per model
+            on = b["view_mask"][:, v].numpy()
+            img = b["images"][on, v : v + 1]
             if model is None:  # the drawing itself, 16×16 average-pooled ink
                 feats.append(torch.nn.functional.adaptive_avg_pool2d(img[:, 0], 16).flatten(1).numpy())
             else:
                 feats.append(model.encode(img).numpy())
-            desc.append(np.concatenate([ext, has], 1))
+            desc.append(np.concatenate([ext, has], 1)[on])
     return np.concatenate(feats), np.concatenate(desc)
 
 
