@@ -1,8 +1,9 @@
 """WebDataset tar shards: one sample per model, written byte-deterministically.
 
 A sample's key is ``<category>_<model_id>``; its members are ``points.npy``, one
-``sketch_<view>_<variant>.png`` per view and variant, ``strokes.json``, ``cameras.json`` and
-``meta.json``. Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
+``sketch_<view>_<variant>.png`` per view and variant, ``strokes.json``, ``cameras.json``,
+``meta.json`` and, where the source has part labels, ``point_parts.npy`` (see
+:mod:`pipeline.part_schema`). Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
 every header field is fixed (sorted member order, mtime 0, uid/gid 0, empty user/group names,
 mode 0o644, GNU format): the same inputs give the same bytes.
 
@@ -28,6 +29,8 @@ import numpy as np
 
 from pipeline.atomic import dumps_json, read_json
 from pipeline.errors import ModelError
+from pipeline.part_schema import POINT_PART_NAMES, POINT_PARTS_MEMBER, PRESENT_PARTS, present_parts
+from pipeline.point_parts import label_points, read_obj_parts, source_obj
 from pipeline.seeding import rng_for
 from pipeline.splits import DEFAULT_FRACTIONS, SPLITS, split_of
 
@@ -189,13 +192,26 @@ def assemble_sample(
         members[p.name] = _read_bytes(p)
     members["strokes.json"] = _read_bytes(dirs.augment_dir / "strokes.json")
     members["cameras.json"] = _read_bytes(dirs.render_dir / "cameras.json")
+    labels = _part_labels(prep)
+    point_names = None
+    obj = source_obj(dirs.prepare_dir, prep) if labels else None
+    if obj is not None:
+        norm = prep.get("normalization") or {}
+        try:
+            ids, point_names = label_points(points, read_obj_parts(obj), norm["center"], norm["scale"],
+                                            rng_for(seed, "point-parts", category, dirs.model_id))
+        except (KeyError, ValueError) as e:
+            raise ModelError(obj, f"cannot label surface points by part: {e}") from e
+        members[POINT_PARTS_MEMBER] = _npy_bytes(ids)
     meta = {
         "key": key,
         "category": category,
         "model_id": dirs.model_id,
         **_source_fields(prep, portable),
         "normalization": prep.get("normalization"),
-        "part_labels": _part_labels(prep),
+        "part_labels": labels,
+        PRESENT_PARTS: present_parts(labels),
+        POINT_PART_NAMES: point_names,
         "bodies": prep.get("bodies"),  # separate volumes of the prepared mesh (None: older record)
         "seed": seed,
         "settings_hash": settings_hash,

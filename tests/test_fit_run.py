@@ -8,8 +8,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
-from train.evaluate import evaluate, metric_names
-from train.fit import FitSettings, fit, load_checkpoint
+from train.data import DataSettings, make_loader
+from train.evaluate import evaluate, format_table, mean_output, metric_names
+from train.fit import FitSettings, fit, load_checkpoint, model_from_checkpoint
+from train.templates import load_template
 from train.losses.weights import LossWeights
 
 
@@ -53,10 +55,21 @@ def test_evaluate_reports_every_metric_for_model_and_template(shards, tmp_path):
     fit(settings(shards, out, 1), progress=False)
     res = evaluate(out / "checkpoint.pt", shards, "test", out=tmp_path / "eval.json")
     assert res["samples"] == 2
-    for who in ("model", "template"):
+    for who in ("model", "template", "blind"):
         assert set(metric_names((0.02, 0.05))) <= set(res[who]) and all(v == v for v in res[who].values())
     assert res["template"]["chamfer"] > 0 and res["template"]["chamfer_sq_x1000"] > 0
-    assert (tmp_path / "eval.json").exists()
+    assert (tmp_path / "eval.json").exists() and "blind" in format_table(res).splitlines()[0]
+
+
+def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 3, lr=1e-2), progress=False)
+    ck = load_checkpoint(out / "checkpoint.pt")
+    model = model_from_checkpoint(ck, load_template("sphere24"))
+    data = DataSettings(eval_views=1, n_points=300, image_size=32)
+    outs = torch.cat([model(b["images"], b["view_mask"]) for b in make_loader(shards, "knife", "train", data, 0, 3, train=False)])
+    assert len(outs) == 8 and (outs.std(0).max() > 0)  # the network does respond to the sketches
+    torch.testing.assert_close(mean_output(model, make_loader(shards, "knife", "train", data, 0, 3, train=False)), outs.mean(0))
 
 
 @pytest.mark.slow

@@ -13,14 +13,15 @@ from train.losses import (
     flatness_loss,
     match_points,
     normal_alignment_loss,
-    point_triangle_sqdist,
     symmetry_loss,
     template_normal_loss,
     total_loss,
     unconnected_pairs,
 )
+from train.geometry.intersections import count_intersecting_pairs
 from train.nn_search import nearest_distances
 from train.templates import sphere24, sphere54
+from train.templates.format import Curve, FreePoint, Patch, Template
 
 torch.set_num_threads(1)
 
@@ -133,31 +134,76 @@ def test_template_normal_and_symmetry_terms():
     assert symmetry_loss(t.points_from_params(prm), pairs, plane_x=0.5).item() > 0.1
 
 
-def test_point_triangle_distance_regions_and_gradcheck():
-    a, b, c = (torch.tensor(x, dtype=torch.float64) for x in ([0, 0, 0], [1, 0, 0], [0, 1, 0]))
-    pts = torch.tensor([[0.2, 0.2, 0.5], [2, 0, 0], [0.5, -1, 0], [-1, -1, 0], [0.5, 0.5, 0]], dtype=torch.float64)
-    expected = torch.tensor([0.25, 1.0, 1.0, 2.0, 0.0], dtype=torch.float64)
-    torch.testing.assert_close(point_triangle_sqdist(pts, a, b, c), expected)
-    x = torch.tensor([[0.2, 0.3, 0.4], [1.5, 0.4, -0.3]], dtype=torch.float64, requires_grad=True)
-    tri = torch.tensor([[0.1, 0.0, 0.0], [1.0, 0.1, 0.0], [0.0, 1.0, 0.2]], dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda p, t: point_triangle_sqdist(p, t[0], t[1], t[2]), (x, tri))
+def _square(z0, x0=0.0):
+    """Corners of a unit square in the plane z = z0 (x from x0), paper order."""
+    return torch.tensor([[x0, 0, z0], [x0 + 1, 0, z0], [x0 + 1, 1, z0], [x0, 1, z0]], dtype=torch.float64)
 
 
-def test_collision_zero_for_template_and_large_for_crossing_patches():
+def _wall(x, z_lo, z_hi):
+    """Corners of a vertical unit-wide patch in the plane x = const spanning z_lo..z_hi."""
+    return torch.tensor([[x, 0, z_lo], [x, 1, z_lo], [x, 1, z_hi], [x, 0, z_hi]], dtype=torch.float64)
+
+
+def test_collision_zero_for_template_and_for_apart_patches():
     t = sphere24()
+    assert collision_loss(sphere_patches(t), collision_pairs(t, grid=8)).item() == 0.0
+    apart = patch_from_corners(torch.stack([_square(0.0), _wall(3.37, -0.3, 0.7)]))[None]
+    assert collision_loss(apart, unconnected_pairs(2, grid=8)).item() == 0.0
+
+
+def test_collision_sees_a_crossing_between_grid_vertices_and_its_gradient_separates():
+    # the wall crosses the square mid-cell (x = 0.37 is no grid column of an 8-grid, z = 0 no row
+    # of the wall's grid): the paper's vertex-to-triangle indicator gives 0 here
+    loose = unconnected_pairs(2, grid=8)
+    corners = torch.stack([_square(0.0), _wall(0.37, -0.3, 0.7)])
+    patches = patch_from_corners(corners)[None].requires_grad_(True)
+    loss = collision_loss(patches, loose)
+    assert loss.item() > 0.05
+    (grad,) = torch.autograd.grad(loss.sum(), patches)
+    # descent lifts the wall (most of it is above the square) and lowers the square under it
+    assert -grad[0, 1, ..., 2].sum() > 0 and -grad[0, 0, ..., 2].sum() < 0
+    # plain gradient descent on this term alone ends the crossing
+    x = patches.detach().clone().requires_grad_(True)
+    for _ in range(200):
+        l = collision_loss(x, loose).sum()
+        if l.item() == 0.0:
+            break
+        (g,) = torch.autograd.grad(l, x)
+        with torch.no_grad():
+            x -= 0.05 * g
+    assert collision_loss(x, loose).item() == 0.0
+    assert count_intersecting_pairs(x[0].detach()) == 0
+    assert count_intersecting_pairs(patches[0].detach()) == 1
+
+
+def test_collision_zero_for_patches_that_only_share_an_edge():
+    # two patches of a template folded at 90 degrees along their shared curve: touching, not crossing
+    pts = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (0, 1, 1)]
+    t = _two_patch_template(pts)
     pairs = collision_pairs(t, grid=8)
-    assert collision_loss(sphere_patches(t), pairs).item() == 0.0
-    horizontal = torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=torch.float64)
-    vertical = torch.tensor([[0.5, 0, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [0.5, 0, 0.5]], dtype=torch.float64)
-    apart = vertical + torch.tensor([3.0, 0, 0], dtype=torch.float64)
-    crossing = patch_from_corners(torch.stack([horizontal, vertical]))[None].requires_grad_(True)
-    separate = patch_from_corners(torch.stack([horizontal, apart]))[None]
-    loose = unconnected_pairs(2, grid=9)  # odd grid: the vertical patch has a vertex row at z = 0
-    hit = collision_loss(crossing, loose)
-    assert hit.item() == pytest.approx(2.0)  # both ordered pairs (i, j), (j, i) at distance 0
-    assert collision_loss(separate, loose).item() == 0.0
-    hit.sum().backward()
-    assert torch.isfinite(crossing.grad).all()
+    patches = t.patches_from_params(t.initial_params(torch.float64)[None])
+    assert pairs.pairs.tolist() == [[0, 1]] and not pairs.keep_i.all()  # adjacent: truncated
+    assert collision_loss(patches, pairs).item() == 0.0
+    # flat continuation (180 degrees) touches along the same edge: also 0
+    t2 = _two_patch_template([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (-1, 0, 0), (-1, 1, 0)])
+    assert collision_loss(t2.patches_from_params(t2.initial_params(torch.float64)[None]), collision_pairs(t2, grid=8)).item() == 0.0
+
+
+def _two_patch_template(pts) -> Template:
+    """Patches (0,1,2,3) and (0,3,5,4) sharing the curve 3→0 (straight cubic curves)."""
+    points = [FreePoint(tuple(float(v) for v in p)) for p in pts]
+    curves, ids = [], {}
+
+    def curve(a, b):
+        pa, pb = np.array(pts[a], float), np.array(pts[b], float)
+        points.extend(FreePoint(tuple(pa + (pb - pa) * f)) for f in (1 / 3, 2 / 3))
+        curves.append(Curve(points=(a, len(points) - 2, len(points) - 1, b)))
+        return len(curves) - 1
+
+    c01, c12, c23, c30 = curve(0, 1), curve(1, 2), curve(2, 3), curve(3, 0)
+    c04, c45, c53 = curve(0, 4), curve(4, 5), curve(5, 3)
+    patches = [Patch((c01, c12, c23, c30)), Patch((c04, c45, c53, c30))]
+    return Template(points=points, curves=curves, patches=patches)
 
 
 def test_total_loss_reaches_every_parameter_and_ablation_switches_terms_off():
@@ -238,9 +284,7 @@ def test_regularizer_gradcheck_float64():
 
 
 def test_collision_skips_absent_patches():
-    horizontal = torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=torch.float64)
-    vertical = torch.tensor([[0.5, 0, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [0.5, 0, 0.5]], dtype=torch.float64)
-    crossing = patch_from_corners(torch.stack([horizontal, vertical]))[None].repeat(2, 1, 1, 1, 1)
+    crossing = patch_from_corners(torch.stack([_square(0.0), _wall(0.37, -0.3, 0.7)]))[None].repeat(2, 1, 1, 1, 1)
     mask = torch.tensor([[True, True], [True, False]])
-    out = collision_loss(crossing, unconnected_pairs(2, grid=9), patch_mask=mask)
-    assert out.tolist() == [2.0, 0.0]
+    out = collision_loss(crossing, unconnected_pairs(2, grid=8), patch_mask=mask)
+    assert out[0] > 0 and out[1] == 0

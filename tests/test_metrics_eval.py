@@ -6,14 +6,8 @@ import torch
 
 from train.geometry import patch_from_corners, sample_surface_uniform
 from train.losses import collision_pairs, unconnected_pairs
-from train.metrics import (
-    chamfer_l2_x1000,
-    chamfer_loss_style,
-    count_intersecting_pairs,
-    fscore,
-    normal_consistency,
-    triangles_intersect,
-)
+from train.geometry.intersections import count_intersecting_pairs, triangles_intersect
+from train.metrics import chamfer_l2_x1000, chamfer_loss_style, fscore, normal_consistency
 from train.templates import sphere24, sphere54
 
 torch.set_num_threads(1)
@@ -73,3 +67,4 @@ def test_count_intersecting_pairs():
     vertical = torch.tensor([[0.5, 0, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [0.5, 0, 0.5]], dtype=torch.float64)
     crossing = patch_from_corners(torch.stack([horizontal, vertical, vertical + 5.0]))
     assert count_intersecting_pairs(crossing, unconnected_pairs(3)) == 1
+    assert count_intersecting_pairs(crossing, unconnected_pairs(3), torch.tensor([True, False, True])) == 0

@@ -25,6 +25,7 @@ import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from pipeline.errors import ModelError
+from pipeline.part_schema import POINT_PARTS_MEMBER
 from pipeline.seeding import rng_for
 from train.augmentation import Jitter, jitter_image
 
@@ -76,11 +77,13 @@ def sketch_table(raw: dict) -> dict[int, list[str]]:
 
 
 def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, train: bool, flip_ok: bool) -> dict:
-    """Raw shard sample -> {"images" (V,1,S,S), "view_mask" (V,), "points" (n,6), "key", "meta"}."""
+    """Raw shard sample -> {"images" (V,1,S,S), "view_mask" (V,), "points" (n,6), "point_parts" (n,),
+    "key", "meta"}."""
     key = raw.get("__key__", "?")
     try:
         points = np.load(io.BytesIO(raw["points.npy"]), allow_pickle=False).astype(np.float32)
         meta = json.loads(raw["meta.json"]) if "meta.json" in raw else {}
+        part_ids = _point_parts(raw, len(points))
         table = sketch_table(raw)
     except Exception as exc:  # noqa: BLE001 - reported with the sample's name
         raise ModelError(key, f"unreadable sample: {exc}") from exc
@@ -106,10 +109,20 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
             img = jitter_image(img, rng, settings.jitter, flip)
         images[i] = to_network(img)
         mask[i] = True
-    pts = points[np.sort(idx)]
+    pts, part_ids = points[np.sort(idx)], part_ids[np.sort(idx)]
     if flip:  # a mirrored drawing shows the mirrored shape: mirror the target across x = 0
-        pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)
-    return {"images": images, "view_mask": mask, "points": pts, "key": key, "meta": meta}
+        pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)  # part families are side-free
+    return {"images": images, "view_mask": mask, "points": pts, "point_parts": part_ids, "key": key, "meta": meta}
+
+
+def _point_parts(raw: dict, n: int) -> np.ndarray:
+    """Per-point part family index (into meta's point_part_names), -1 where the sample has none."""
+    if POINT_PARTS_MEMBER not in raw:
+        return np.full(n, -1, np.int64)
+    ids = np.load(io.BytesIO(raw[POINT_PARTS_MEMBER]), allow_pickle=False).astype(np.int64)
+    if ids.shape != (n,):
+        raise ValueError(f"{POINT_PARTS_MEMBER} has shape {ids.shape}, points.npy has {n} points")
+    return ids
 
 
 def collate(samples: list[dict]) -> dict[str, Any]:
@@ -117,6 +130,7 @@ def collate(samples: list[dict]) -> dict[str, Any]:
         "images": torch.from_numpy(np.stack([s["images"] for s in samples])),
         "view_mask": torch.from_numpy(np.stack([s["view_mask"] for s in samples])),
         "points": torch.from_numpy(np.stack([s["points"] for s in samples])),
+        "point_parts": torch.from_numpy(np.stack([s["point_parts"] for s in samples])),
         "key": [s["key"] for s in samples],
         "meta": [s["meta"] for s in samples],
     }

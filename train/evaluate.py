@@ -1,5 +1,7 @@
 """Evaluation on a split: the paper's ablation-table metrics plus peers' Chamfer and F-score,
-for the trained network and for the template alone (the baseline every model must beat).
+for the trained network and two baselines every model must beat: the template alone, and the
+sketch-blind mean shape (the mean of the network's outputs over the train split, used as one
+constant prediction for every sketch; what the network gives without looking at the sketch).
 
 Metrics (means over samples):
   chamfer          the paper's L_Ch: unsquared distances, Jacobian-weighted on the patch side
@@ -22,7 +24,8 @@ from train.data import DataSettings, make_loader
 from train.fit import load_checkpoint, model_from_checkpoint
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
-from train.metrics import chamfer_l2_x1000, count_intersecting_pairs, fscore, normal_consistency
+from train.geometry.intersections import count_intersecting_pairs
+from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
 from train.objective import Objective
 from train.templates import load_template
 
@@ -42,7 +45,7 @@ def batch_metrics(
     target, target_n = points[..., :3], points[..., 3:]
     mask = objective.patch_mask(batch["meta"], params.device)
     weights = LossWeights(symmetry=0.0)
-    terms = objective.terms(params, points, objective.sample_st(None), mask, weights)
+    terms = objective.batch_terms(params, batch, objective.sample_st(None), weights, grouped=False)
     out = {k: terms[k] for k in LOSS_METRICS}
     patches = objective.template.patches_from_params(params)
     # peers' metrics on area-uniform samples of the present patches, as many as the target has
@@ -54,8 +57,23 @@ def batch_metrics(
     out["normal_consistency"] = normal_consistency(pp, pn, target, target_n)
     for t in taus:
         out[f"fscore@{t:g}"] = fscore(pp, target, t)
-    out["intersecting_pairs"] = torch.tensor([float(count_intersecting_pairs(p, objective.pairs)) for p in patches])
+    out["intersecting_pairs"] = torch.tensor(
+        [float(count_intersecting_pairs(p, objective.pairs, None if mask is None else mask[b])) for b, p in enumerate(patches)]
+    )
     return out
+
+
+@torch.no_grad()
+def mean_output(model, loader) -> torch.Tensor:
+    """Mean network output ``(D,)`` over a loader's samples: the sketch-blind constant prediction."""
+    total, count = None, 0
+    for batch in loader:
+        params = model(batch["images"], batch["view_mask"]).double().sum(0)
+        total = params if total is None else total + params
+        count += len(batch["key"])
+    if not count:
+        raise ValueError("no samples to average for the sketch-blind baseline")
+    return (total / count).float()
 
 
 @torch.no_grad()
@@ -78,15 +96,18 @@ def evaluate(
     objective = Objective(template, s["n_points"])
     names = metric_names(tuple(taus))
     # the same evaluation samples on every call, and for the network as for the template
-    generators = {name: torch.Generator().manual_seed(0) for name in ("model", "template")}
+    baselines = ("model", "template", "blind")
+    generators = {name: torch.Generator().manual_seed(0) for name in baselines}
     data = DataSettings(eval_views=views, n_points=s["n_points"], image_size=s["image_size"])
-    loader = make_loader(dataset, category or s["category"], split, data, 0, batch_size, train=False)
-    sums = {"model": {k: 0.0 for k in names}, "template": {k: 0.0 for k in names}}
+    cat = category or s["category"]
+    loader = make_loader(dataset, cat, split, data, 0, batch_size, train=False)
+    blind = mean_output(model, make_loader(dataset, cat, "train", data, 0, batch_size, train=False))[None]
+    sums = {name: {k: 0.0 for k in names} for name in baselines}
     count = 0
     base = template.initial_params()[None]
     for batch in loader:
         params = model(batch["images"], batch["view_mask"])
-        for name, p in (("model", params), ("template", base.expand_as(params))):
+        for name, p in (("model", params), ("template", base.expand_as(params)), ("blind", blind.expand_as(params))):
             for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
                 sums[name][k] += float(v.sum())
         count += len(batch["key"])
@@ -108,9 +129,10 @@ def evaluate(
 
 
 def format_table(result: dict) -> str:
-    lines = [f"{'metric':<20}{'model':>14}{'template':>14}"]
+    cols = [c for c in ("model", "template", "blind") if c in result]
+    lines = [f"{'metric':<20}" + "".join(f"{c:>14}" for c in cols)]
     for k in result["model"]:
-        lines.append(f"{k:<20}{result['model'][k]:>14.6g}{result['template'][k]:>14.6g}")
+        lines.append(f"{k:<20}" + "".join(f"{result[c][k]:>14.6g}" for c in cols))
     return "\n".join(lines)
 
 

@@ -104,7 +104,7 @@ def validation_chamfer(model: SketchToPatches, loader, objective: Objective, dev
     st = objective.sample_st(None)
     for batch in loader:
         params = model(batch["images"].to(device), batch["view_mask"].to(device))
-        terms = objective.terms(params, batch["points"].to(device), st, objective.patch_mask(batch["meta"], device), weights)
+        terms = objective.batch_terms(params, batch, st, weights, grouped=False)
         total += float(terms["chamfer"].sum())
         count += params.shape[0]
     model.train(was_training)
@@ -181,8 +181,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         images = batch["images"].to(info.device)
         params = net(images, batch["view_mask"].to(info.device))
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
-        terms = objective.terms(params, batch["points"].to(info.device), objective.sample_st(gen),
-                                objective.patch_mask(batch["meta"], info.device), settings.weights)  # fmt: skip
+        terms = objective.batch_terms(params, batch, objective.sample_st(gen), settings.weights)
         loss = weighted_sum(terms, settings.weights).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()

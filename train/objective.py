@@ -1,5 +1,10 @@
 """The paper's loss bound to one template: its sample layout, collision pairs, symmetry pairs
-and template normals are computed once, then every batch calls ``terms``."""
+and template normals are computed once, then every batch calls ``batch_terms`` (or ``terms``).
+
+Part structure reaches every term here: ``patch_mask`` turns patches of a model's absent optional
+parts off (and the template's closing patches for that part on), from the shard's
+``present_parts``; ``groups`` splits Chamfer and normal terms by the template's ``part_groups``
+using the shard's per-point part labels."""
 
 from __future__ import annotations
 
@@ -8,7 +13,9 @@ import math
 import torch
 from torch import Tensor
 
+from pipeline.part_schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.geometry.coons import evaluate_patches
+from train.losses.chamfer import Groups
 from train.losses.collision import collision_pairs
 from train.losses.total import loss_terms
 from train.losses.weights import LossWeights
@@ -26,6 +33,14 @@ class Objective:
         self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
         with torch.no_grad():
             self.template_patches = template.patches_from_params(template.initial_params()[None])
+        self.closing = dict(getattr(template, "closing_patches", None) or {})
+        self.patch_points = _patch_point_incidence(template)  # (P, N) bool
+        group_names = list(getattr(template, "part_groups", None) or {})
+        self.group_of_label = {lab: g for g, name in enumerate(group_names) for lab in template.part_groups[name]}
+        self.n_groups = len(group_names) + 1  # labels in no group form the last one
+        self.patch_group = torch.tensor(
+            [self.group_of_label.get(lab, len(group_names)) for lab in template.patch_labels], dtype=torch.long
+        )
 
     def sample_st(self, generator: torch.Generator | None) -> Tensor:
         """Uniform random (s, t) samples (S, 2) when given a generator, else a midpoint grid."""
@@ -36,18 +51,60 @@ class Objective:
         return torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
 
     def patch_mask(self, metas: list[dict], device: torch.device) -> Tensor | None:
-        """(B, P) bool: patches of optional parts a model lacks are left out (e.g. turbines)."""
-        if not self.template.optional_parts:
+        """(B, P) bool: patches of optional parts a model lacks are off (e.g. engines), and the
+        template's closing patches of a part are on only when the part is absent. A model
+        without ``present_parts`` (a source without part labels) counts as having every part."""
+        if not self.template.optional_parts and not self.closing:
             return None
-        mask = torch.ones(len(metas), self.template.num_patches, dtype=torch.bool)
-        for b, meta in enumerate(metas):
-            has = (meta or {}).get("has_parts", {}) or {}
-            for part, patch_ids in self.template.optional_parts.items():
-                if not has.get(part, True):
-                    mask[b, patch_ids] = False
-        return mask.to(device)
+        return torch.stack([self.mask_for((meta or {}).get(PRESENT_PARTS)) for meta in metas]).to(device)
 
-    def terms(self, params: Tensor, points: Tensor, st: Tensor, mask: Tensor | None, weights: LossWeights) -> dict[str, Tensor]:
+    def mask_for(self, present: list[str] | None) -> Tensor:
+        """(P,) bool patch mask for a model with the part families ``present`` (None: all)."""
+        mask = torch.ones(self.template.num_patches, dtype=torch.bool)
+        parts = set(self.template.optional_parts) | set(self.closing)
+        for part in parts:
+            has = present is None or part in present
+            mask[self.template.optional_parts.get(part, [])] = has
+            mask[self.closing.get(part, [])] = not has
+        return mask
+
+    def groups(self, batch: dict, device: torch.device) -> Groups | None:
+        """Part group of each target point from the shard's per-point labels, or None when the
+        template declares no groups or a sample lacks labels (then one group: the whole shape)."""
+        if self.n_groups == 1 or "point_parts" not in batch:
+            return None
+        ids = batch["point_parts"]
+        if (ids < 0).any():
+            return None
+        rows = []
+        for b, meta in enumerate(batch["meta"]):
+            names = (meta or {}).get(POINT_PART_NAMES) or []
+            lut = torch.tensor([self.group_of_label.get(n, self.n_groups - 1) for n in names] or [0], dtype=torch.long)
+            rows.append(lut[ids[b].clamp(0, len(lut) - 1)])
+        return Groups(self.patch_group.to(device), torch.stack(rows).to(device), self.n_groups)
+
+    def symmetry_valid(self, mask: Tensor | None) -> Tensor | None:
+        """(B, K) bool: symmetry pairs whose two points both belong to some present patch."""
+        if mask is None or not self.sym.numel():
+            return None
+        used = (mask.float() @ self.patch_points.to(mask.device).float()) > 0  # (B, N)
+        sym = self.sym.to(mask.device)
+        return used[:, sym[:, 0]] & used[:, sym[:, 1]]
+
+    def batch_terms(
+        self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, grouped: bool = True
+    ) -> dict[str, Tensor]:
+        """``terms`` for a loader batch: target points, patch mask and (training: ``grouped``) part
+        groups from the batch. Metrics use ``grouped=False``: the plain L_Ch, comparable across
+        templates."""
+        dev = params.device
+        return self.terms(params, batch["points"].to(dev), st, self.patch_mask(batch["meta"], dev), weights,
+                          self.groups(batch, dev) if grouped else None)  # fmt: skip
+
+    def terms(
+        self, params: Tensor, points: Tensor, st: Tensor, mask: Tensor | None, weights: LossWeights,
+        groups: Groups | None = None,
+    ) -> dict[str, Tensor]:  # fmt: skip
         """Each term per batch item (B,) for network outputs ``params (B, D)`` and target
         ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped."""
         st = st.to(params.device)
@@ -58,6 +115,31 @@ class Objective:
             self.template.patches_from_params(params), st, points[..., :3], points[..., 3:], weights,
             patch_mask=mask, template_normals=template_normals,
             control_points=self.template.points_from_params(params) if self.sym.numel() else None,
-            symmetry_pairs=self.sym if self.sym.numel() else None, plane_x=self.plane_x,
-            collision=self.pairs,
+            symmetry_pairs=self.sym if self.sym.numel() else None, symmetry_valid=self.symmetry_valid(mask),
+            plane_x=self.plane_x, collision=self.pairs, groups=groups,
         )  # fmt: skip
+
+
+def _patch_point_incidence(template: Template) -> Tensor:
+    """(P, N) bool: which template points a patch's geometry depends on (its curves' control
+    points, through sub-curves to their parents and junction points to their host curves)."""
+    from functools import cache
+
+    from train.templates.format import JunctionPoint
+
+    @cache
+    def point_deps(pi: int) -> frozenset[int]:
+        p = template.points[pi]
+        return frozenset({pi}) | (curve_deps(p.curve) if isinstance(p, JunctionPoint) else frozenset())
+
+    @cache
+    def curve_deps(ci: int) -> frozenset[int]:
+        c = template.curves[ci]
+        if not c.is_sub:
+            return frozenset().union(*(point_deps(p) for p in c.points))
+        return point_deps(c.start) | point_deps(c.end) | curve_deps(c.parent)
+
+    out = torch.zeros(template.num_patches, template.num_points, dtype=torch.bool)
+    for pi, patch in enumerate(template.patches):
+        out[pi, sorted(frozenset().union(*(curve_deps(ci) for ci in patch.curves)))] = True
+    return out

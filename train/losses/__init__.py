@@ -5,12 +5,11 @@ Every term returns one value per batch item ``(B,)``; ``total_loss`` combines th
 ``LossWeights`` (paper values; weight 0 switches a term off).
 """
 
-from train.losses.chamfer import Matches, chamfer_loss, match_points, normal_alignment_loss
+from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.collision import (
     CollisionPairs,
     collision_loss,
     collision_pairs,
-    point_triangle_sqdist,
     unconnected_pairs,
 )
 from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
@@ -20,6 +19,7 @@ from train.losses.weights import LossWeights
 __all__ = [
     "TERMS",
     "CollisionPairs",
+    "Groups",
     "LossWeights",
     "Matches",
     "chamfer_loss",
@@ -29,7 +29,6 @@ __all__ = [
     "loss_terms",
     "match_points",
     "normal_alignment_loss",
-    "point_triangle_sqdist",
     "symmetry_loss",
     "template_normal_loss",
     "total_loss",

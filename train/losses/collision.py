@@ -1,18 +1,26 @@
-"""Collision (self-intersection) loss between patches, the paper's L_coll:
+"""Collision (self-intersection) loss between patches: the penetration depth of crossings.
 
-    Σ_{i≠j} exp(−(min(d(T^i, P^j), d(T^j, P^i)) / ε)²)
+The paper's L_coll, Σ_{i≠j} exp(−(d(T^i, P^j)/ε)²) over grid vertices P^j and triangles T^i, is
+blind to two patches that cross between grid vertices: no vertex is near the other patch, so the
+loss and its gradient are 0 (see docs/geometry.md). This term looks at the crossing itself.
 
-with T^i a fixed-grid triangulation of patch i and P^j its grid vertices. d is the smallest
-*squared* point–triangle distance (so ε = 1e-6 means contact within ~1e-3 on unit-sphere
-models). Pairs that share a curve, part of a curve, a corner or a junction are truncated: grid
-vertices within ``truncate`` rows of the shared sides/corners and the triangles touching them
-are left out on both patches. Pairs whose bounding boxes are farther apart than the indicator can
-see are culled before any distance is computed.
+Both patches are triangulated on a ``grid``×``grid`` grid. For an ordered pair (i, j), every grid
+edge of patch i that passes through a triangle of patch j is a crossing. Its penalty is the
+distance to the triangle's plane of the edge end that lies on the *minority* side of patch j,
+the side where fewer of patch i's vertices lie (signed distances summed, detached): the gradient
+pulls the part of patch i that pokes through back to the side where the rest of it is, and the
+pair (j, i) does the same for patch j, so the two separate. Patches that do not cross cost 0.
+Pairs that share a curve, part of a curve, a corner or a junction are truncated: grid vertices
+within ``truncate`` rows of the shared sides/corners and the edges and triangles touching them
+are left out on both patches, so patches that only meet along their common boundary cost 0.
+
+Culling keeps it cheap: patch pairs by bounding box, then (edge, triangle) pairs by bounding box
+and by the edge's end points lying on both sides of the triangle's plane, all detached; the
+differentiable depth is computed only for the crossings found.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -83,80 +91,115 @@ def _pack(pairs, keep_i, keep_j, grid) -> CollisionPairs:
     return CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
 
 
-def _seg_sqdist(p: Tensor, a: Tensor, b: Tensor) -> Tensor:
-    ab = b - a
-    t = (((p - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(_TINY)).clamp(0.0, 1.0)
-    return ((p - a - t[..., None] * ab) ** 2).sum(-1)
+def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
+    """Per grid cell: its 4 vertex ids ``(C, 4)`` (a, b, c, d counter-clockwise), its 5 edges as
+    vertex pairs ``(C, 5, 2)`` (4 sides + the a–c diagonal) and its 2 triangles' face ids ``(C, 2)``
+    in ``grid_triangulation(grid)``'s order."""
+    k = grid - 1
+    i_t, i_s = torch.meshgrid(torch.arange(k), torch.arange(k), indexing="ij")
+    a = (i_t * grid + i_s).reshape(-1)
+    quad = torch.stack([a, a + 1, a + grid + 1, a + grid], -1)
+    edges = quad[:, [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]]
+    faces = torch.stack([torch.arange(k * k), torch.arange(k * k) + k * k], -1)
+    return quad.to(device), edges.to(device), faces.to(device)
 
 
-def point_triangle_sqdist(p: Tensor, a: Tensor, b: Tensor, c: Tensor) -> Tensor:
-    """Squared distance from points to triangles (all broadcastable ``(..., 3)``) → ``(...)``."""
-    ab, ac, ap = b - a, c - a, p - a
-    d00, d01, d11 = (ab * ab).sum(-1), (ab * ac).sum(-1), (ac * ac).sum(-1)
-    d20, d21 = (ap * ab).sum(-1), (ap * ac).sum(-1)
-    denom = d00 * d11 - d01 * d01  # = |ab × ac|²
-    safe = denom.clamp_min(_TINY)
-    v = (d11 * d20 - d01 * d21) / safe
-    w = (d00 * d21 - d01 * d20) / safe
-    inside = (v >= 0) & (w >= 0) & (v + w <= 1) & (denom > _TINY)
-    n = torch.linalg.cross(ab, ac, dim=-1)
-    plane = (ap * n).sum(-1) ** 2 / safe
-    edges = torch.minimum(torch.minimum(_seg_sqdist(p, a, b), _seg_sqdist(p, b, c)), _seg_sqdist(p, c, a))
-    return torch.where(inside, plane, edges)
+def _crossings(src: Tensor, keep_src: Tensor, tris: Tensor, keep_tris: Tensor, grid: int) -> Tensor:
+    """(pair, vertex a, vertex b, triangle) rows where the grid edge a–b of ``src (n, V, 3)`` passes
+    through a triangle of ``tris (n, F, 3, 3)`` (detached; kept edges and triangles only).
+
+    Two levels: cell boxes of the two grids against each other, then the 5 edges of each
+    overlapping source cell against the 2 triangles of the target cell (unique rows)."""
+    quad, cell_edges, cell_faces = _cells(grid, src.device)
+    cs = src[:, quad]  # (n, C, 4, 3)
+    slo, shi = cs.amin(-2), cs.amax(-2)
+    ct = tris[:, cell_faces].flatten(2, 3)  # (n, C, 6, 3)
+    tlo, thi = ct.amin(-2), ct.amax(-2)
+    # cells inside the other grid's box first (cheap), then box against box for those pairs only
+    src_in = ((slo <= thi.amax(1, keepdim=True)) & (shi >= tlo.amin(1, keepdim=True))).all(-1)  # (n, C)
+    dst_in = ((tlo <= shi.amax(1, keepdim=True)) & (thi >= slo.amin(1, keepdim=True))).all(-1)
+    n, c_src, c_dst = (src_in[:, :, None] & dst_in[:, None, :]).nonzero().unbind(-1)
+    over = ((slo[n, c_src] <= thi[n, c_dst]) & (shi[n, c_src] >= tlo[n, c_dst])).all(-1)
+    n, c_src, c_dst = n[over], c_src[over], c_dst[over]
+    if n.numel() == 0:
+        return torch.zeros((0, 4), dtype=torch.long, device=src.device)
+    e = cell_edges[c_src]  # (h, 5, 2)
+    f = cell_faces[c_dst]  # (h, 2)
+    n_v, n_f = src.shape[1], tris.shape[1]
+    # an edge borders 2 cells: unique (pair, a, b, triangle) rows, through one int64 key each
+    key = ((n[:, None, None] * n_v + e[:, :, None, 0]) * n_v + e[:, :, None, 1]) * n_f + f[:, None, :]
+    key = torch.unique(key.reshape(-1))
+    f, key = key % n_f, key // n_f
+    vb, key = key % n_v, key // n_v
+    va, n = key % n_v, key // n_v
+    ok = keep_src[n, va] & keep_src[n, vb] & keep_tris[n, f]
+    n, va, vb, f = n[ok], va[ok], vb[ok], f[ok]
+    t = tris[n, f]
+    pa, pb = src[n, va], src[n, vb]
+    normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
+    da, db = ((pa - t[:, 0]) * normal).sum(-1), ((pb - t[:, 0]) * normal).sum(-1)
+    through = da * db < 0  # strictly on both sides of the plane
+    # where the edge meets the plane: inside the triangle? (edge functions on the triangle's plane)
+    x = pa + (da / torch.where(through, da - db, torch.ones_like(da)))[:, None] * (pb - pa)
+    inside = torch.ones_like(through)
+    for k in range(3):
+        u, v = t[:, k], t[:, (k + 1) % 3]
+        inside &= (torch.linalg.cross(v - u, x - u, dim=-1) * normal).sum(-1) >= 0
+    hit = through & inside
+    return torch.stack([n[hit], va[hit], vb[hit], f[hit]], -1)
 
 
-def _contacts(points: Tensor, keep_pts: Tensor, tris: Tensor, keep_tris: Tensor, margin: float) -> Tensor:
-    """(pair, vertex, triangle) triples whose point lies in the triangle's box grown by ``margin``.
-
-    Detached and boolean only: the exact distance is then computed for these few triples.
-    """
-    lo, hi = tris.amin(-2) - margin, tris.amax(-2) + margin  # (n, F, 3)
-    p = points[:, :, None]
-    inside = ((p >= lo[:, None]) & (p <= hi[:, None])).all(-1)  # (n, V, F)
-    inside &= keep_pts[:, :, None] & keep_tris[:, None, :]
-    return inside.nonzero()
+def _kept_box(v: Tensor, keep: Tensor) -> tuple[Tensor, Tensor]:
+    """Bounding box ``(N, 3)`` of the kept vertices ``keep (N, V)`` of ``v (N, V, 3)``."""
+    k = keep[..., None]
+    return torch.where(k, v, torch.full_like(v, float("inf"))).amin(-2), torch.where(k, v, torch.full_like(v, -float("inf"))).amax(-2)
 
 
 def collision_loss(
-    patches: Tensor, pairs: CollisionPairs, eps: float = 1e-6, chunk: int = 256, patch_mask: Tensor | None = None
+    patches: Tensor, pairs: CollisionPairs, chunk: int = 256, patch_mask: Tensor | None = None
 ) -> Tensor:
-    """L_coll per batch item ``(B,)`` for ``patches (B, P, 4, 4, 3)``; ordered pairs (i≠j) count twice.
-    ``patch_mask (B, P)`` leaves out pairs with an absent patch (optional parts).
-
-    Culling: patch pairs by bounding box, then point/triangle pairs by triangle box, both grown
-    by the distance beyond which exp(−(d/ε)²) < 1e-12; exact distances only for what is left.
-    """
-    # zero that stays attached to the graph, so backward works when nothing touches
+    """Penetration depth per batch item ``(B,)`` for ``patches (B, P, 4, 4, 3)``: the sum over
+    crossings of both ordered pairs (i, j), (j, i). ``patch_mask (B, P)`` leaves out pairs with an
+    absent patch (optional parts)."""
+    # zero that stays attached to the graph, so backward works when nothing crosses
     out = (patches * 0).flatten(1).sum(-1)
     if pairs.pairs.numel() == 0:
         return out
     dev = patches.device
-    margin = math.sqrt(6.0 * eps)
     verts, faces = triangulate_patches(patches, pairs.grid)  # (B, P, V, 3), (F, 3)
     pr = pairs.pairs.to(dev)
     keep_i, keep_j = pairs.keep_i.to(dev), pairs.keep_j.to(dev)
     with torch.no_grad():
         lo, hi = verts.amin(2), verts.amax(2)  # (B, P, 3)
-        gap = (torch.maximum(lo[:, pr[:, 0]], lo[:, pr[:, 1]]) - torch.minimum(hi[:, pr[:, 0]], hi[:, pr[:, 1]])).clamp_min(0)
-        near = (gap * gap).sum(-1) <= margin * margin  # (B, K)
+        near = ((lo[:, pr[:, 0]] <= hi[:, pr[:, 1]]) & (lo[:, pr[:, 1]] <= hi[:, pr[:, 0]])).all(-1)  # (B, K)
         if patch_mask is not None:
             pm = patch_mask.to(dev)
             near &= pm[:, pr[:, 0]] & pm[:, pr[:, 1]]
         cand = near.nonzero()  # (N, 2): batch, pair
-    best = patches.new_zeros(cand.shape[0])
+        # then the boxes of the kept vertices only (bands along shared boundaries left out)
+        b, k = cand.unbind(-1)
+        (lo_i, hi_i), (lo_j, hi_j) = _kept_box(verts[b, pr[k, 0]], keep_i[k]), _kept_box(verts[b, pr[k, 1]], keep_j[k])
+        cand = cand[((lo_i <= hi_j) & (lo_j <= hi_i)).all(-1)]
+    depth = patches.new_zeros(cand.shape[0])
     for start in range(0, cand.shape[0], chunk):
         b, k = cand[start : start + chunk].unbind(-1)
         sl = torch.arange(start, start + b.shape[0], device=dev)
-        for src, dst, k_src, k_dst in ((pr[k, 1], pr[k, 0], keep_j[k], keep_i[k]), (pr[k, 0], pr[k, 1], keep_i[k], keep_j[k])):
+        for src, dst, k_src, k_dst in ((pr[k, 0], pr[k, 1], keep_i[k], keep_j[k]), (pr[k, 1], pr[k, 0], keep_j[k], keep_i[k])):
             pts, tris = verts[b, src], verts[b, dst][:, faces]  # (n, V, 3), (n, F, 3, 3)
             with torch.no_grad():
-                hit = _contacts(pts.detach(), k_src, tris.detach(), k_dst[:, faces].all(-1), margin)
+                hit = _crossings(pts.detach(), k_src, tris.detach(), k_dst[:, faces].all(-1), pairs.grid)
             if hit.shape[0] == 0:
                 continue
-            n, v, f = hit.unbind(-1)
-            tri = tris[n, f]
-            d = point_triangle_sqdist(pts[n, v], tri[:, 0], tri[:, 1], tri[:, 2])
-            term = torch.exp(-((d / eps) ** 2))
-            # max over contacts of exp(−(d/ε)²) = exp of the min distance
-            best = best.scatter_reduce(0, sl[n], term, reduce="amax", include_self=True)
-    return out.index_add(0, cand[:, 0], 2.0 * best)
+            n, va, vb, f = hit.unbind(-1)
+            t = tris[n, f]
+            normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
+            unit = normal / normal.norm(dim=-1, keepdim=True).clamp_min(_TINY)
+            ends = torch.stack([pts[n, va], pts[n, vb]], 1)  # (h, 2, 3)
+            signed = ((ends - t[:, None, 0]) * unit[:, None]).sum(-1)  # (h, 2)
+            with torch.no_grad():  # which side of the triangle most of patch `src` lies on
+                all_sd = ((pts[n].detach() - t[:, None, 0].detach()) * unit[:, None].detach()).sum(-1)
+                side = torch.sign((all_sd * k_src[n].to(all_sd.dtype)).sum(-1))
+                side = torch.where(side == 0, torch.ones_like(side), side)
+                minority = (signed.detach() * side[:, None] < 0).to(signed.dtype)  # one end per crossing
+            depth = depth.index_add(0, sl[n], (signed.abs() * minority).sum(-1))
+    return out.index_add(0, cand[:, 0], depth)

@@ -34,11 +34,11 @@ def template_normal_loss(
     return _weighted_mean(((normals - template_normals) ** 2).sum(-1), jacobian, valid)
 
 
-def symmetry_loss(points: Tensor, pairs: Tensor, plane_x: float = 0.0) -> Tensor:
+def symmetry_loss(points: Tensor, pairs: Tensor, plane_x: float = 0.0, valid: Tensor | None = None) -> Tensor:
     """Mean over pairs (i, j) of ‖(x_i − a, y_i, z_i) − (a − x_j, y_j, z_j)‖², a = plane_x.
 
     ``points (B, N, 3)`` (all template control points), ``pairs (K, 2)``; a pair (k, k) pins a
-    point to the plane. No pairs → zeros.
+    point to the plane. ``valid (B, K)`` leaves out pairs (points of absent parts). No pairs → zeros.
     """
     if pairs.numel() == 0:
         return points.new_zeros(points.shape[0])
@@ -46,4 +46,8 @@ def symmetry_loss(points: Tensor, pairs: Tensor, plane_x: float = 0.0) -> Tensor
     pi, pj = points[:, pairs[:, 0]], points[:, pairs[:, 1]]
     # (x_i − a) − (a − x_j) = x_i + x_j − 2a ; y_i − y_j ; z_i − z_j
     diff = torch.stack([pi[..., 0] + pj[..., 0] - 2 * plane_x, pi[..., 1] - pj[..., 1], pi[..., 2] - pj[..., 2]], -1)
-    return (diff**2).sum(-1).mean(-1)
+    sq = (diff**2).sum(-1)
+    if valid is None:
+        return sq.mean(-1)
+    w = valid.to(sq.dtype)
+    return (sq * w).sum(-1) / w.sum(-1).clamp_min(1.0)

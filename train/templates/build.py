@@ -26,6 +26,14 @@ from train.templates.part_boxes import category_boxes
 from train.templates.render import render_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
+# The paper's regularizers per category (§3.3): template normals wherever a category template
+# exists, symmetry for airplanes and cars; cars fit wheels and body apart (§4).
+SYMMETRY_REGULARIZED = ("airplane", "car")
+PART_GROUPS = {"car": {"wheels": ["wheel_front", "wheel_rear"]}}
+
+
+def category_regularizers(category: str) -> dict[str, float]:
+    return {"template_normal": 1e-4, **({"symmetry": 1.0} if category in SYMMETRY_REGULARIZED else {})}
 Progress = Callable[[int, int, str], None] | None
 
 
@@ -94,6 +102,8 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
             "median_model": ids[chosen],
         },
     )
+    tpl.regularizers = category_regularizers(category)
+    tpl.part_groups = dict(PART_GROUPS.get(category, {}))
     return CategoryResult(tpl, ids, ids[chosen], [float(s) for s in sums], failures)
 
 

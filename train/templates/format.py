@@ -23,6 +23,13 @@ A template is a deformable set of Coons patches that share control points. It is
                                        # P(0,0)→P(1,0), c2 right →P(1,1), c3 top →P(0,1),
                                        # c4 left →P(0,0); P_s × P_t points outward
       "optional_parts": {"turbine": [patch ids]},
+      "part_groups": {"wheels": ["wheel_front", "wheel_rear"]},
+                                       # optional: patch labels whose Chamfer and normal terms are
+                                       # computed apart from the rest (the paper's car wheels);
+                                       # labels in no group form one more group
+      "regularizers": {"template_normal": 1e-4, "symmetry": 1.0},
+                                       # optional: default weights of the regularizers this
+                                       # template wants; a regularizer not named is off (weight 0)
       "symmetry": {"plane_x": 0.0, "pairs": [[i, j], ...], "self": [k, ...]} or null,
                                        # mirror x = plane_x; pairs of point indices that mirror each
                                        # other, and points on the plane
@@ -92,6 +99,9 @@ class Symmetry:
     self_points: tuple[int, ...] = ()
 
 
+REGULARIZERS = ("template_normal", "symmetry")  # weights a template file chooses (off unless named)
+
+
 class TemplateError(ValueError):
     """The template is inconsistent (bad reference, open patch loop, junction cycle)."""
 
@@ -105,6 +115,8 @@ class Template:
     optional_parts: dict[str, list[int]] = field(default_factory=dict)
     symmetry: Symmetry | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    part_groups: dict[str, list[str]] = field(default_factory=dict)
+    regularizers: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._compile()
@@ -161,6 +173,12 @@ class Template:
         for name, ids in self.optional_parts.items():
             if any(not 0 <= i < len(self.patches) for i in ids):
                 raise TemplateError(f"optional part {name!r}: bad patch index")
+        for name in self.regularizers:
+            if name not in REGULARIZERS:
+                raise TemplateError(f"regularizer {name!r}: expected one of {REGULARIZERS}")
+        grouped = [lab for labels in self.part_groups.values() for lab in labels]
+        if len(grouped) != len(set(grouped)):
+            raise TemplateError("part_groups: a label is in more than one group")
         self._schedule = self._make_schedule()
         self._boundary_cache: dict[int, set[int]] = {}
         self._dev_cache: dict[str, Any] = {}
@@ -429,6 +447,9 @@ class Template:
                 "self": list(self.symmetry.self_points),
             },
             "metadata": self.metadata,
+            # written only when set, so templates without them keep their bytes
+            **({"part_groups": {k: list(v) for k, v in sorted(self.part_groups.items())}} if self.part_groups else {}),
+            **({"regularizers": dict(sorted(self.regularizers.items()))} if self.regularizers else {}),
         }
 
     @classmethod
@@ -456,6 +477,8 @@ class Template:
             optional_parts={k: [int(i) for i in v] for k, v in data.get("optional_parts", {}).items()},
             symmetry=symmetry,
             metadata=dict(data.get("metadata", {})),
+            part_groups={k: [str(x) for x in v] for k, v in data.get("part_groups", {}).items()},
+            regularizers={k: float(v) for k, v in data.get("regularizers", {}).items()},
         )
 
 

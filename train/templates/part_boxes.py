@@ -8,20 +8,16 @@ three bars that close a loop with the cup wall (a hole in the handle), so the te
 
 from __future__ import annotations
 
-import re
 from typing import Sequence
 
 import numpy as np
 
+from pipeline.part_schema import part_family as base_label
 from train.templates.lattice import Box, CuboidLike
 
 WALL = 0.12  # cup wall thickness, fraction of the cup's half-width
 BOTTOM = 0.12  # cup bottom thickness, fraction of its height
 BAR = 0.25  # handle bar thickness, fraction of the handle's reach / height
-
-
-def base_label(label: str) -> str:
-    return re.sub(r"\d+$", "", re.sub(r"_(l|r|left|right)$", "", label))
 
 
 def category_boxes(category: str, cuboids: Sequence[CuboidLike]) -> list[Box]:

@@ -1,0 +1,70 @@
+"""Figure: test sketch | prediction | ground truth, one row per test model.
+
+Usage: .venv/bin/python bench/figure_predictions.py --checkpoint RUN/best.pt --dataset DS --work-dir WORK
+       --out docs/images/quality_<category>.png [--rows 4]
+Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import webdataset as wds
+
+from pipeline.mesh_io import read_ply
+from pipeline.sheets import contact_sheet, save_png
+from pipeline.thumbnails import render_mesh
+from train.data import read_png, sketch_table, to_network
+from train.fit import load_checkpoint, model_from_checkpoint
+from train.geometry.triangulate import welded_mesh
+from train.objective import Objective
+from train.templates import load_template
+
+
+@torch.no_grad()
+def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256) -> np.ndarray:
+    ckpt = load_checkpoint(checkpoint)
+    s = ckpt["settings"]
+    template = load_template(s["template"])
+    model = model_from_checkpoint(ckpt, template)
+    objective = Objective(template, 500)
+    urls = sorted(glob.glob(str(Path(dataset) / s["category"] / "test-*.tar")))
+    images, labels = [], []
+    for raw in wds.WebDataset(urls, shardshuffle=False):
+        meta = json.loads(raw["meta.json"])
+        name = sketch_table(raw)[0][0]
+        sketch = read_png(raw[name], s["image_size"])
+        x = torch.from_numpy(to_network(sketch))[None, None]
+        patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
+        keep = objective.mask_for(meta.get("present_parts"))
+        v, f = welded_mesh(patches[keep].double(), 12)
+        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s["category"] / meta["model_id"] / "mesh.ply")))
+        gv, gf = read_ply(gt[0])
+        big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
+        images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]
+        labels += [f"{meta['model_id']} sketch", "prediction", "ground truth"]
+        if len(images) >= 3 * rows:
+            break
+    return contact_sheet(images, labels, cols=3)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--checkpoint", required=True)
+    ap.add_argument("--dataset", required=True)
+    ap.add_argument("--work-dir", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--rows", type=int, default=4)
+    a = ap.parse_args()
+    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows))
+    print(a.out)
+
+
+if __name__ == "__main__":
+    main()
