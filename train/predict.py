@@ -8,6 +8,7 @@ mesh from the subdivision integer program), ``patches.igs`` (exact bicubic NURBS
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -47,15 +48,6 @@ def load_predictor(checkpoint: str | Path) -> tuple[SketchToPatches, Template, d
     return model_from_checkpoint(ckpt, template), template, ckpt
 
 
-def kept_patches(template: Template, parts: dict[str, bool]) -> np.ndarray:
-    """Indices of patches to export: optional parts switched off are dropped."""
-    drop = {i for name, on in parts.items() if not on for i in template.optional_parts.get(name, [])}
-    unknown = set(parts) - set(template.optional_parts)
-    if unknown:
-        raise ValueError(f"template has no optional part(s) {sorted(unknown)}; it has {sorted(template.optional_parts)}")
-    return np.array([i for i in range(template.num_patches) if i not in drop], dtype=int)
-
-
 def predicted_template(template: Template, params: torch.Tensor) -> Template:
     """The template with its points moved to the prediction (junction t from the logits)."""
     pos = template.points_from_params(params[None].double())[0].numpy()
@@ -66,8 +58,8 @@ def predicted_template(template: Template, params: torch.Tensor) -> Template:
             points.append(FreePoint(tuple(float(x) for x in pos[i])))
         else:
             points.append(JunctionPoint(p.curve, float(torch.sigmoid(params[offsets[i]].double()))))
-    return Template(points, template.curves, template.patches, f"{template.name}-prediction",
-                    template.optional_parts, template.symmetry, {**template.metadata, "predicted": True})  # fmt: skip
+    return dataclasses.replace(template, points=points, name=f"{template.name}-prediction",
+                               metadata={**template.metadata, "predicted": True})  # fmt: skip
 
 
 def export_patches(patches: np.ndarray, out: str | Path, quad_alpha: float = 12.0, tri_alpha: float = 40.0) -> dict:
@@ -97,6 +89,7 @@ def predict(checkpoint: str | Path, sketches: list[str | Path], out: str | Path,
     params = model(images)[0]
     out = Path(out)
     save_template(predicted_template(template, params), out / "patches.json")
-    keep = kept_patches(template, parts or {})
+    # a part switched off drops its patches and brings in its closing patches: still closed
+    keep = template.active_patches(parts)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
     return export_patches(patches, out)

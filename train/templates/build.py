@@ -6,6 +6,10 @@ template, and sample its surface. The template of the model with the smallest su
 distance to all others is the category template. Labels present in only some models (airplane
 engines) are optional parts; the median is taken among models that have every label, so the
 template carries the optional patches and the trainer can toggle them.
+
+With a patch budget (``BuildSettings.budget``, e.g. the paper's counts in
+``budget.PAPER_PATCHES``) the median's cuboids are coarsened until the template fits
+(``budget.py``); every template records its Chamfer distance to the median model.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import numpy as np
 from pipeline.normalize import apply_transform, unit_sphere_transform
 from pipeline.seeding import rng_for
 from pipeline.sheets import save_png
+from train.templates.budget import candidates, template_chamfer, within_budget
 from train.templates.format import Template, save_template
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
 from train.templates.median import chamfer_matrix, median_index, sample_surface
@@ -26,6 +31,10 @@ from train.templates.part_boxes import category_boxes
 from train.templates.render import render_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
+# Patch groups with their own Chamfer/normal terms (the paper: car wheels vs body).
+PART_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
+    "car": (("wheels", ("wheel_front", "wheel_rear")),),
+}
 Progress = Callable[[int, int, str], None] | None
 
 
@@ -35,6 +44,7 @@ class BuildSettings:
     seed: int = 0
     chamfer_points: int = 2048
     template: TemplateSettings = TemplateSettings()
+    budget: dict[str, int] | None = None  # max patches per category (missing: no budget)
 
 
 @dataclass
@@ -80,19 +90,18 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
         snap_tol=settings.template.snap_tol,
         symmetric=settings.template.symmetric,
         optional_labels=tuple(optional),
+        part_groups=PART_GROUPS.get(category, ()),
     )
-    tpl = template_from_boxes(
-        boxes_of[ids[chosen]],
-        name=category,
-        settings=tsettings,
-        metadata={
-            "category": category,
-            "source": "procedural",
-            "seed": settings.seed,
-            "n_models": len(ids),
-            "median_model": ids[chosen],
-        },
-    )
+    meta = {"category": category, "source": "procedural", "seed": settings.seed, "n_models": len(ids), "median_model": ids[chosen]}
+    budget = (settings.budget or {}).get(category)
+    if budget is None:
+        tpl = template_from_boxes(boxes_of[ids[chosen]], name=category, settings=tsettings)
+        dist_to_median = template_chamfer(tpl, clouds[chosen], np.random.default_rng([settings.seed, 7919]))
+    else:
+        pick = within_budget(candidates(boxes_of[ids[chosen]], clouds[chosen], tsettings, category, settings.seed), budget)
+        tpl, dist_to_median = pick.template, pick.chamfer
+        meta.update(patch_budget=budget, min_part_volume=pick.coarsening.min_volume, merge_labels=pick.coarsening.merge_labels)
+    tpl.metadata.update(meta, chamfer_to_median=round(float(dist_to_median), 6))
     return CategoryResult(tpl, ids, ids[chosen], [float(s) for s in sums], failures)
 
 

@@ -23,11 +23,22 @@ A template is a deformable set of Coons patches that share control points. It is
                                        # P(0,0)→P(1,0), c2 right →P(1,1), c3 top →P(0,1),
                                        # c4 left →P(0,0); P_s × P_t points outward
       "optional_parts": {"turbine": [patch ids]},
+                                       # patches present only when the part is present
+      "closing_patches": {"turbine": [patch ids]},
+                                       # patches present only when the part is ABSENT: they close
+                                       # the surface where the part was attached (written only
+                                       # when some template part has them)
+      "part_groups": {"wheels": [patch ids], "body": [...]},
+                                       # patch groups whose Chamfer/normal terms are computed
+                                       # separately (cars: wheels vs body); written only when set
       "symmetry": {"plane_x": 0.0, "pairs": [[i, j], ...], "self": [k, ...]} or null,
                                        # mirror x = plane_x; pairs of point indices that mirror each
                                        # other, and points on the plane
       "metadata": {...}                # free-form (source, category, construction settings)
     }
+
+With optional parts, ``Template.active_patches({"turbine": False})`` is the patch set of one
+on/off combination; every combination is a closed surface (templates built from cuboids).
 
 Parameter vector (what the network outputs): points in order; a free point contributes its
 x, y, z; a junction point one number, logit(t). ``Template.patches_from_params`` maps a batch
@@ -105,6 +116,8 @@ class Template:
     optional_parts: dict[str, list[int]] = field(default_factory=dict)
     symmetry: Symmetry | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    closing_patches: dict[str, list[int]] = field(default_factory=dict)
+    part_groups: dict[str, list[int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._compile()
@@ -125,6 +138,27 @@ class Template:
     @property
     def patch_labels(self) -> list[str]:
         return [p.label for p in self.patches]
+
+    @property
+    def part_names(self) -> list[str]:
+        """Names of the parts that can be switched on/off (optional or closing patches)."""
+        return sorted(set(self.optional_parts) | set(self.closing_patches))
+
+    def active_patches(self, parts: dict[str, bool] | None = None) -> list[int]:
+        """Patch ids making the surface for the given parts (missing names: present).
+
+        A patch listed under ``optional_parts[name]`` needs the part present; one listed under
+        ``closing_patches[name]`` needs it absent; a patch in several lists needs all conditions.
+        """
+        parts = dict(parts or {})
+        unknown = set(parts) - set(self.part_names)
+        if unknown:
+            raise ValueError(f"template has no optional part(s) {sorted(unknown)}; it has {self.part_names}")
+        off = set()
+        for name in self.part_names:
+            present = bool(parts.get(name, True))
+            off.update(self.closing_patches.get(name, []) if present else self.optional_parts.get(name, []))
+        return [i for i in range(len(self.patches)) if i not in off]
 
     # ---- compile: validation and an evaluation schedule -----------------------------------
     def _compile(self) -> None:
@@ -158,9 +192,11 @@ class Template:
             for k in range(4):
                 if chain[k][1] != chain[(k + 1) % 4][0]:
                     raise TemplateError(f"patch {pi}: curve {k + 1} does not end where curve {(k + 1) % 4 + 1} starts")
-        for name, ids in self.optional_parts.items():
-            if any(not 0 <= i < len(self.patches) for i in ids):
-                raise TemplateError(f"optional part {name!r}: bad patch index")
+        for kind, table in (("optional part", self.optional_parts), ("closing patches of", self.closing_patches),
+                            ("part group", self.part_groups)):  # fmt: skip
+            for name, ids in table.items():
+                if any(not 0 <= i < len(self.patches) for i in ids):
+                    raise TemplateError(f"{kind} {name!r}: bad patch index")
         self._schedule = self._make_schedule()
         self._boundary_cache: dict[int, set[int]] = {}
         self._dev_cache: dict[str, Any] = {}
@@ -429,6 +465,11 @@ class Template:
                 "self": list(self.symmetry.self_points),
             },
             "metadata": self.metadata,
+            **{
+                key: {k: [int(i) for i in v] for k, v in sorted(table.items())}
+                for key, table in (("closing_patches", self.closing_patches), ("part_groups", self.part_groups))
+                if table
+            },
         }
 
     @classmethod
@@ -456,6 +497,8 @@ class Template:
             optional_parts={k: [int(i) for i in v] for k, v in data.get("optional_parts", {}).items()},
             symmetry=symmetry,
             metadata=dict(data.get("metadata", {})),
+            closing_patches={k: [int(i) for i in v] for k, v in data.get("closing_patches", {}).items()},
+            part_groups={k: [int(i) for i in v] for k, v in data.get("part_groups", {}).items()},
         )
 
 

@@ -1,0 +1,108 @@
+"""Templates within a patch budget: coarser constructions, scored by Chamfer to the median model.
+
+The greedy merge stops where merging two more quads would leave a non-rectangle or an
+ill-defined junction, so fewer patches need a simpler cuboid collection. Three knobs, swept
+together: a coarser lattice (``snap_tol``: nearby grid lines snap into one), dropping small
+cuboids (``min_volume``: a fraction of the summed box volume), and merging the labels of
+required parts (``merge_labels``: coplanar faces of different parts can merge, e.g. a guitar's
+body, neck and head; optional parts and part groups keep their own labels). Among the
+constructions within the budget, the one closest to the median model (symmetric Chamfer
+distance between surface samples, unsquared, normalized units) wins.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from train.templates.checks import conforming_mesh
+from train.templates.format import Template
+from train.templates.from_cuboids import TemplateSettings, template_from_boxes
+from train.templates.lattice import Box
+from train.templates.median import chamfer, sample_surface
+
+# Patch counts of the paper's category templates (Smirnov et al. 2021, supplement); bathtub and
+# bottle are not given there (5 and 2 cuboids): budgets of the same order as their cuboid count.
+PAPER_PATCHES = {"airplane": 76, "car": 43, "mug": 32, "guitar": 22, "gun": 20, "knife": 14, "bathtub": 24, "bottle": 14}
+
+SNAP_TOLS = (0.01, 0.02, 0.04, 0.06, 0.08, 0.12, 0.16)
+MIN_VOLUMES = (0.0, 0.002, 0.01, 0.03)
+
+
+@dataclass(frozen=True)
+class Coarsening:
+    snap_tol: float = 0.01
+    min_volume: float = 0.0
+    merge_labels: bool = False
+
+
+@dataclass
+class Candidate:
+    coarsening: Coarsening
+    template: Template
+    chamfer: float
+
+    @property
+    def patches(self) -> int:
+        return self.template.num_patches
+
+
+def coarsen_boxes(boxes: Sequence[Box], c: Coarsening, keep: Sequence[str] = ()) -> list[Box]:
+    """Drop boxes under ``c.min_volume`` of the summed volume; with ``c.merge_labels`` relabel
+    every box whose label is not in ``keep`` with the label of the largest such box."""
+    vol = np.array([float(np.prod(np.asarray(b.hi) - np.asarray(b.lo))) for b in boxes])
+    out = [b for b, v in zip(boxes, vol) if v >= c.min_volume * vol.sum()]
+    if c.merge_labels:
+        free = [b for b in out if b.label not in keep]
+        if free:
+            main = max(free, key=lambda b: float(np.prod(b.hi - b.lo))).label
+            out = [b if b.label in keep else Box(main, b.lo, b.hi) for b in out]
+    return out
+
+
+def template_chamfer(tpl: Template, target: np.ndarray, rng: np.random.Generator) -> float:
+    """Chamfer distance from the template (every part present) to the point cloud ``target``."""
+    verts, faces, _ = conforming_mesh(tpl)
+    return chamfer(sample_surface(verts, faces, len(target), rng), target)
+
+
+def candidates(
+    boxes: Sequence[Box], target: np.ndarray, settings: TemplateSettings, name: str, seed: int,
+    snap_tols: Sequence[float] = SNAP_TOLS, min_volumes: Sequence[float] = MIN_VOLUMES,
+) -> list[Candidate]:  # fmt: skip
+    """Every coarsening of the sweep that builds, with its template and Chamfer to ``target``."""
+    keep = set(settings.optional_labels) | {lab for _, labs in settings.part_groups for lab in labs}
+    out, seen = [], set()
+    for tol, vmin, merge in itertools.product(snap_tols, min_volumes, (False, True)):
+        c = Coarsening(tol, vmin, merge)
+        cboxes = coarsen_boxes(boxes, c, sorted(keep))
+        key = (tol, tuple((b.label, tuple(b.lo), tuple(b.hi)) for b in cboxes))
+        if key in seen or not cboxes:
+            continue  # the same boxes at the same tolerance give the same template
+        seen.add(key)
+        tpl = template_from_boxes(cboxes, name, dataclasses.replace(settings, snap_tol=tol))
+        rng = np.random.default_rng([seed, 7919])
+        out.append(Candidate(c, tpl, template_chamfer(tpl, target, rng)))
+    return out
+
+
+def within_budget(cands: list[Candidate], budget: int) -> Candidate:
+    """The closest candidate with at most ``budget`` patches (the smallest one if none fits)."""
+    fits = [c for c in cands if c.patches <= budget]
+    if not fits:
+        return min(cands, key=lambda c: (c.patches, c.chamfer))
+    return min(fits, key=lambda c: (c.chamfer, c.patches))
+
+
+def pareto(cands: list[Candidate]) -> list[Candidate]:
+    """Candidates no other beats on both patch count and Chamfer, by patch count."""
+    front, best = [], np.inf
+    for c in sorted(cands, key=lambda c: (c.patches, c.chamfer)):
+        if c.chamfer < best:
+            front.append(c)
+            best = c.chamfer
+    return front
