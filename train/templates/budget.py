@@ -5,7 +5,8 @@ ill-defined junction, so fewer patches need a simpler cuboid collection. Three k
 together: a coarser lattice (``snap_tol``: nearby grid lines snap into one), dropping small
 cuboids (``min_volume``: a fraction of the summed box volume), and merging the labels of
 required parts (``merge_labels``: coplanar faces of different parts can merge, e.g. a guitar's
-body, neck and head; optional parts and part groups keep their own labels). Among the
+body, neck and head; optional parts and part groups keep their own labels). Part groups (car
+wheels) are never dropped; a small optional part may be (the template then lacks that option). Among the
 constructions within the budget, the one closest to the median model (symmetric Chamfer
 distance between surface samples, unsquared, normalized units) wins.
 """
@@ -51,11 +52,12 @@ class Candidate:
         return self.template.num_patches
 
 
-def coarsen_boxes(boxes: Sequence[Box], c: Coarsening, keep: Sequence[str] = ()) -> list[Box]:
-    """Drop boxes under ``c.min_volume`` of the summed volume; with ``c.merge_labels`` relabel
-    every box whose label is not in ``keep`` with the label of the largest such box."""
+def coarsen_boxes(boxes: Sequence[Box], c: Coarsening, keep: Sequence[str] = (), protect: Sequence[str] = ()) -> list[Box]:
+    """Drop boxes under ``c.min_volume`` of the summed volume (never those labelled in
+    ``protect``: part groups such as car wheels); with ``c.merge_labels`` relabel every box
+    whose label is not in ``keep`` with the label of the largest such box."""
     vol = np.array([float(np.prod(np.asarray(b.hi) - np.asarray(b.lo))) for b in boxes])
-    out = [b for b, v in zip(boxes, vol) if v >= c.min_volume * vol.sum()]
+    out = [b for b, v in zip(boxes, vol) if v >= c.min_volume * vol.sum() or b.label in protect]
     if c.merge_labels:
         free = [b for b in out if b.label not in keep]
         if free:
@@ -75,16 +77,20 @@ def candidates(
     snap_tols: Sequence[float] = SNAP_TOLS, min_volumes: Sequence[float] = MIN_VOLUMES,
 ) -> list[Candidate]:  # fmt: skip
     """Every coarsening of the sweep that builds, with its template and Chamfer to ``target``."""
-    keep = set(settings.optional_labels) | {lab for _, labs in settings.part_groups for lab in labs}
+    grouped = sorted({lab for _, labs in settings.part_groups for lab in labs})
+    keep = sorted(set(settings.optional_labels) | set(grouped))
     out, seen = [], set()
     for tol, vmin, merge in itertools.product(snap_tols, min_volumes, (False, True)):
         c = Coarsening(tol, vmin, merge)
-        cboxes = coarsen_boxes(boxes, c, sorted(keep))
+        cboxes = coarsen_boxes(boxes, c, keep, grouped)
         key = (tol, tuple((b.label, tuple(b.lo), tuple(b.hi)) for b in cboxes))
         if key in seen or not cboxes:
             continue  # the same boxes at the same tolerance give the same template
         seen.add(key)
-        tpl = template_from_boxes(cboxes, name, dataclasses.replace(settings, snap_tol=tol))
+        try:
+            tpl = template_from_boxes(cboxes, name, dataclasses.replace(settings, snap_tol=tol))
+        except ValueError:
+            continue  # the tolerance is coarser than the whole shape along an axis
         rng = np.random.default_rng([seed, 7919])
         out.append(Candidate(c, tpl, template_chamfer(tpl, target, rng)))
     return out

@@ -159,6 +159,8 @@ def build_lattice(
         ln = snap_lines(vals, tol)
         if a == 0 and symmetric_x:
             ln = 0.5 * (ln - ln[::-1])  # exact symmetry despite float noise
+        if len(ln) < 2:
+            raise ValueError(f"snap tolerance {tol} merges every grid line along axis {a}")
         lines.append(ln)
     # Each cuboid bound → index of its nearest line; thin cuboids still span ≥ 1 cell.
     idx_lo = np.stack([np.abs(lines[a][None, :] - lo[:, a, None]).argmin(1) for a in range(3)], 1)
