@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from train.templates.budget import PAPER_PATCHES
-from train.templates.build import DATA_DIR, BuildSettings, build_all, size_table, write_template_png
+from train.templates.build import DATA_DIR, BuildSettings, build_all, size_table
 from train.templates.from_cuboids import TemplateSettings
 
 
@@ -45,7 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     z.add_argument("--n-models", type=int, default=16)
     z.add_argument("--seed", type=int, default=0)
     r = sub.add_parser("render", help="render a template to PNG, one colour per patch")
-    r.add_argument("template", help="sphere24, sphere54, a category name, or a template .json path")
+    r.add_argument("template", nargs="+", help="sphere24, sphere54, a category name, or a template .json path; "
+                   "several are rendered side by side (e.g. an old and a new template)")
     r.add_argument("--out", type=Path, required=True)
     r.add_argument("--size", type=int, default=384, help="pixels per view (two views side by side)")
     args = ap.parse_args(argv)
@@ -64,7 +65,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from train.templates import load_template
 
-    write_template_png(load_template(args.template), args.out, size=args.size)
+    import numpy as np
+
+    from pipeline.sheets import save_png
+    from train.templates.render import render_template
+
+    save_png(args.out, np.concatenate([render_template(load_template(t), size=args.size) for t in args.template], axis=1))
     print(args.out)
     return 0
 

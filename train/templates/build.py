@@ -32,6 +32,9 @@ from train.templates.part_boxes import category_boxes
 from train.templates.render import render_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
+# Categories whose template declares its symmetry plane: the paper enforces symmetry for
+# airplanes and cars only (every template is still built mirror-symmetric).
+SYMMETRY_PLANE = ("airplane", "car")
 # Patch groups with their own Chamfer/normal terms (the paper: car wheels vs body).
 PART_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "car": (("wheels", ("wheel_front", "wheel_rear")),),
@@ -103,6 +106,7 @@ def category_median(category: str, settings: BuildSettings = BuildSettings(), pr
     tsettings = TemplateSettings(
         snap_tol=settings.template.snap_tol,
         symmetric=settings.template.symmetric,
+        declare_symmetry=category in SYMMETRY_PLANE,
         optional_labels=tuple(optional),
         part_groups=PART_GROUPS.get(category, ()),
     )

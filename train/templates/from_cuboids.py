@@ -28,6 +28,7 @@ from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
 class TemplateSettings:
     snap_tol: float = 0.01  # grid lines closer than this (normalized units) are snapped together
     symmetric: bool = True  # mirror the cuboids across x = 0 and merge in mirror pairs
+    declare_symmetry: bool = True  # store the plane and point pairs (the symmetry loss uses them)
     optional_labels: tuple[str, ...] = ("turbine", "engine")
     # part groups with separate loss terms: group name -> labels; unlisted labels form "body"
     part_groups: tuple[tuple[str, tuple[str, ...]], ...] = ()
@@ -74,7 +75,7 @@ def template_from_boxes(
         "snap_tol": settings.snap_tol,
         **(metadata or {}),
     }
-    if settings.symmetric:
+    if settings.symmetric and settings.declare_symmetry:
         tpl.find_symmetry(0.0, tol=1e-6)
     return tpl
 
