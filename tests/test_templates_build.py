@@ -234,3 +234,13 @@ def test_patch_budget_picks_a_closed_template_within_the_budget():
     front = pareto(cands)
     assert [c.patches for c in front] == sorted(c.patches for c in front)
     assert all(a.chamfer > b.chamfer for a, b in zip(front, front[1:]))
+
+
+def test_coarsening_drops_only_small_optional_parts():
+    from train.templates.budget import Coarsening, coarsen_boxes
+
+    boxes = [B("body", [0, 0, 0], [4, 1, 1]), B("fin", [0, 1, 0], [0.3, 1.3, 0.1]), B("pod", [1, -0.2, 0], [1.2, 0, 0.2]),
+             B("tank", [2, -1, 0], [3, 0, 1])]  # fmt: skip
+    out = coarsen_boxes(boxes, Coarsening(0.01, 0.05, merge_labels=True), keep=["pod", "tank"], droppable=["pod", "tank"])
+    assert [b.label for b in out] == ["body", "body", "tank"]  # the tiny fin stays (required), relabelled
+    assert [b.label for b in coarsen_boxes(boxes, Coarsening(0.01, 0.0), ["pod", "tank"], ["pod", "tank"])] == ["body", "fin", "pod", "tank"]

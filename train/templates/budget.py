@@ -3,10 +3,11 @@
 The greedy merge stops where merging two more quads would leave a non-rectangle or an
 ill-defined junction, so fewer patches need a simpler cuboid collection. Three knobs, swept
 together: a coarser lattice (``snap_tol``: nearby grid lines snap into one), dropping small
-cuboids (``min_volume``: a fraction of the summed box volume), and merging the labels of
+optional parts (``min_volume``: a fraction of the summed box volume; a required part is never
+dropped, so no airplane loses its tailplane), and merging the labels of
 required parts (``merge_labels``: coplanar faces of different parts can merge, e.g. a guitar's
-body, neck and head; optional parts and part groups keep their own labels). Part groups (car
-wheels) are never dropped; a small optional part may be (the template then lacks that option). Among the
+body, neck and head; optional parts and part groups keep their own labels). A dropped optional
+part is no longer an option of the template. Among the
 constructions within the budget, the one closest to the median model (symmetric Chamfer
 distance between surface samples, unsquared, normalized units) wins.
 """
@@ -20,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from train.templates.checks import conforming_mesh
+from train.templates.checks import conforming_mesh, surface_components
 from train.templates.format import Template
 from train.templates.from_cuboids import TemplateSettings, template_from_boxes
 from train.templates.lattice import Box
@@ -52,12 +53,12 @@ class Candidate:
         return self.template.num_patches
 
 
-def coarsen_boxes(boxes: Sequence[Box], c: Coarsening, keep: Sequence[str] = (), protect: Sequence[str] = ()) -> list[Box]:
-    """Drop boxes under ``c.min_volume`` of the summed volume (never those labelled in
-    ``protect``: part groups such as car wheels); with ``c.merge_labels`` relabel every box
-    whose label is not in ``keep`` with the label of the largest such box."""
+def coarsen_boxes(boxes: Sequence[Box], c: Coarsening, keep: Sequence[str] = (), droppable: Sequence[str] = ()) -> list[Box]:
+    """Drop boxes labelled in ``droppable`` (optional parts) under ``c.min_volume`` of the summed
+    volume; with ``c.merge_labels`` relabel every box whose label is not in ``keep`` with the
+    label of the largest such box."""
     vol = np.array([float(np.prod(np.asarray(b.hi) - np.asarray(b.lo))) for b in boxes])
-    out = [b for b, v in zip(boxes, vol) if v >= c.min_volume * vol.sum() or b.label in protect]
+    out = [b for b, v in zip(boxes, vol) if v >= c.min_volume * vol.sum() or b.label not in droppable]
     if c.merge_labels:
         free = [b for b in out if b.label not in keep]
         if free:
@@ -76,13 +77,16 @@ def candidates(
     boxes: Sequence[Box], target: np.ndarray, settings: TemplateSettings, name: str, seed: int,
     snap_tols: Sequence[float] = SNAP_TOLS, min_volumes: Sequence[float] = MIN_VOLUMES,
 ) -> list[Candidate]:  # fmt: skip
-    """Every coarsening of the sweep that builds, with its template and Chamfer to ``target``."""
+    """Every coarsening of the sweep that builds, with its template and Chamfer to ``target``.
+
+    A construction that breaks the surface into more pieces than the first one (dropping a
+    tailfin can leave the tailplane floating) is left out."""
     grouped = sorted({lab for _, labs in settings.part_groups for lab in labs})
     keep = sorted(set(settings.optional_labels) | set(grouped))
-    out, seen = [], set()
+    out, seen, pieces = [], set(), None
     for tol, vmin, merge in itertools.product(snap_tols, min_volumes, (False, True)):
         c = Coarsening(tol, vmin, merge)
-        cboxes = coarsen_boxes(boxes, c, keep, grouped)
+        cboxes = coarsen_boxes(boxes, c, keep, [lab for lab in settings.optional_labels if lab not in grouped])
         key = (tol, tuple((b.label, tuple(b.lo), tuple(b.hi)) for b in cboxes))
         if key in seen or not cboxes:
             continue  # the same boxes at the same tolerance give the same template
@@ -91,6 +95,10 @@ def candidates(
             tpl = template_from_boxes(cboxes, name, dataclasses.replace(settings, snap_tol=tol))
         except ValueError:
             continue  # the tolerance is coarser than the whole shape along an axis
+        n = surface_components(tpl)
+        pieces = n if pieces is None else pieces
+        if n > pieces:
+            continue
         rng = np.random.default_rng([seed, 7919])
         out.append(Candidate(c, tpl, template_chamfer(tpl, target, rng)))
     return out

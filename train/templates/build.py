@@ -131,10 +131,10 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
 
 
 def size_table(categories: list[str], settings: BuildSettings = BuildSettings()) -> str:
-    """Markdown table per category: the default construction, the paper-budget pick, and the
+    """Markdown table per category: the full construction (no budget), the paper-budget pick, the
     Pareto front of patch count vs Chamfer to the median model over the coarsening sweep."""
     lines = [
-        "| category | default: patches / Chamfer | paper budget | pick: patches / Chamfer | pick: snap, min volume, merged labels | Pareto front (patches: Chamfer) |",
+        "| category | no budget: patches / Chamfer | paper budget | pick: patches / Chamfer | pick: snap, min volume, merged labels | Pareto front (patches: Chamfer) |",
         "|---|---:|---:|---:|---|---|",
     ]
     for n, cat in enumerate(categories):

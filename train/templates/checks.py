@@ -171,3 +171,20 @@ def _edges_hit(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
         t = np.einsum("ij,ij->i", e2, qv) * inv
         hit |= ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= -tol) & (t <= 1 + tol)
     return hit
+
+
+def surface_components(tpl: Template, active: list[int] | None = None) -> int:
+    """Number of connected pieces of the active patches (patches touching at a curve or point)."""
+    ids = _active(tpl, active)
+    root = {i: i for i in ids}
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            root[i] = root[root[i]]
+            i = root[i]
+        return i
+
+    for i, j in tpl.adjacency():
+        if i in root and j in root:
+            root[find(i)] = find(j)
+    return len({find(i) for i in ids})
