@@ -8,8 +8,9 @@ dropped, so no airplane loses its tailplane), and merging the labels of
 required parts (``merge_labels``: coplanar faces of different parts can merge, e.g. a guitar's
 body, neck and head; optional parts and part groups keep their own labels). A dropped optional
 part is no longer an option of the template. Among the
-constructions within the budget, the one closest to the median model (symmetric Chamfer
-distance between surface samples, unsquared, normalized units) wins.
+constructions within the budget, those keeping the most optional parts are preferred, then the
+one closest to the median model (symmetric Chamfer distance between surface samples, unsquared,
+normalized units) wins.
 """
 
 from __future__ import annotations
@@ -105,11 +106,13 @@ def candidates(
 
 
 def within_budget(cands: list[Candidate], budget: int) -> Candidate:
-    """The closest candidate with at most ``budget`` patches (the smallest one if none fits)."""
+    """The candidate with at most ``budget`` patches that keeps the most optional parts (the
+    paper's airplane keeps its turbines), closest to the median among those; the smallest
+    candidate if none fits."""
     fits = [c for c in cands if c.patches <= budget]
     if not fits:
         return min(cands, key=lambda c: (c.patches, c.chamfer))
-    return min(fits, key=lambda c: (c.chamfer, c.patches))
+    return min(fits, key=lambda c: (-len(c.template.part_names), c.chamfer, c.patches))
 
 
 def pareto(cands: list[Candidate]) -> list[Candidate]:
