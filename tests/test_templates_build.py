@@ -244,3 +244,10 @@ def test_coarsening_drops_only_small_optional_parts():
     out = coarsen_boxes(boxes, Coarsening(0.01, 0.05, merge_labels=True), keep=["pod", "tank"], droppable=["pod", "tank"])
     assert [b.label for b in out] == ["body", "body", "tank"]  # the tiny fin stays (required), relabelled
     assert [b.label for b in coarsen_boxes(boxes, Coarsening(0.01, 0.0), ["pod", "tank"], ["pod", "tank"])] == ["body", "fin", "pod", "tank"]
+
+
+def test_a_thin_box_snapped_onto_the_last_grid_line_keeps_its_cells():
+    # the tailplane on top of a fin, thinner than the snap tolerance: it must not vanish
+    boxes = [B("fin", [0, 0, 0], [1, 1, 1]), B("tail", [0.2, 1.0, 0.2], [0.8, 1.02, 0.8])]
+    lat = build_lattice(boxes, 0.05)
+    assert (lat.owner == lat.labels.index("tail")).any()

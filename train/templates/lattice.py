@@ -165,7 +165,10 @@ def build_lattice(
     # Each cuboid bound → index of its nearest line; thin cuboids still span ≥ 1 cell.
     idx_lo = np.stack([np.abs(lines[a][None, :] - lo[:, a, None]).argmin(1) for a in range(3)], 1)
     idx_hi = np.stack([np.abs(lines[a][None, :] - hi[:, a, None]).argmin(1) for a in range(3)], 1)
-    idx_hi = np.maximum(idx_hi, idx_lo + 1)
+    # a box snapped onto the last line keeps the cell below it instead of vanishing
+    last = np.array([len(ln) - 1 for ln in lines])
+    idx_hi = np.minimum(np.maximum(idx_hi, idx_lo + 1), last)
+    idx_lo = np.minimum(idx_lo, idx_hi - 1)
     shape = tuple(len(ln) - 1 for ln in lines)
     owner = np.full(shape, -1, np.int64)
     # Smaller cuboids claim shared cells, so thin parts (turbines, handles) keep their own label;
