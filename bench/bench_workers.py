@@ -38,7 +38,8 @@ def count_tasks(counts: dict[str, int], batch_size: int) -> collections.Counter:
     """Task families and counts of one BuildDataset over categories with these model counts."""
     import luigi
 
-    from workflows.tasks import BuildDataset, CategoryShards, SourceList
+    from workflows.steps import n_batches
+    from workflows.tasks import AugmentBatch, BuildDataset, CategoryShards, SourceList
 
     root = BuildDataset(categories=",".join(counts), models_per_category=0, batch_size=batch_size,
                         work_dir="/nonexistent/work", dataset_dir="/nonexistent/ds")
@@ -50,7 +51,8 @@ def count_tasks(counts: dict[str, int], batch_size: int) -> collections.Counter:
             continue
         seen[task.task_id] = task
         if isinstance(task, CategoryShards):  # its batches, for these counts instead of the source's
-            stack.extend([task.clone(SourceList)] + task.batch_tasks(counts[task.category]))
+            stack.extend([task.clone(SourceList)] + [task.clone(AugmentBatch, batch=b)
+                                                     for b in range(n_batches(counts[task.category], batch_size))])
         else:
             stack.extend(luigi.task.flatten(task.requires()))
     return collections.Counter(t.task_family for t in seen.values())

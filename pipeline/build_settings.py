@@ -21,18 +21,47 @@ DEFAULT_WORK_DIR = Path("data/work")
 DEFAULT_DATASET_DIR = Path("data/dataset")
 
 
+def _type_name(value: Any) -> str:
+    return {bool: "true/false", int: "an integer", float: "a number", str: "a string"}.get(
+        type(value), type(value).__name__)
+
+
+def _check_type(owner: str, name: str, current: Any, value: Any) -> Any:
+    """``value`` for a setting whose default is ``current``, of the same kind (an integer where
+    an integer is expected, not "abc" or 2.5), lists turned into tuples; else ValueError."""
+    if isinstance(current, tuple):
+        if not isinstance(value, (list, tuple)) or len(value) != len(current):
+            raise ValueError(f"{owner}.{name} must be a list of {len(current)} values, got {value!r}")
+        return tuple(_check_type(owner, f"{name}[{i}]", c, v) for i, (c, v) in enumerate(zip(current, value)))
+    if isinstance(current, bool) or isinstance(value, bool):
+        ok = isinstance(current, bool) and isinstance(value, bool)
+    elif isinstance(current, int):
+        ok = isinstance(value, int)
+    elif isinstance(current, float):
+        ok = isinstance(value, (int, float))
+    elif isinstance(current, str):
+        ok = isinstance(value, str)
+    else:
+        ok = True  # None or another kind: the settings class checks it
+    if not ok:
+        raise ValueError(f"{owner}.{name} must be {_type_name(current)}, got {value!r}")
+    return value
+
+
 def _replace(cls_instance: Any, overrides: dict) -> Any:
-    """``dataclasses.replace`` that also accepts lists for tuple fields and dicts for nested ones."""
+    """``dataclasses.replace`` with every value type-checked against the field's default; accepts
+    lists for tuple fields and dicts for nested ones."""
     fields = {f.name: f for f in dataclasses.fields(cls_instance)}
+    owner = type(cls_instance).__name__
     clean = {}
     for name, value in overrides.items():
         if name not in fields:
-            raise ValueError(f"{type(cls_instance).__name__} has no setting {name!r}")
+            raise ValueError(f"{owner} has no setting {name!r}; it has: {', '.join(fields)}")
         current = getattr(cls_instance, name)
         if dataclasses.is_dataclass(current) and isinstance(value, dict):
             value = _replace(current, value)
-        elif isinstance(current, tuple) and isinstance(value, list):
-            value = tuple(value)
+        else:
+            value = _check_type(owner, name, current, value)
         clean[name] = value
     return dataclasses.replace(cls_instance, **clean)
 
@@ -43,7 +72,10 @@ def parse_overrides(text: str | dict | None) -> dict:
         return {}
     if isinstance(text, dict):
         return dict(text)
-    value = json.loads(text)
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"not valid JSON ({exc}): {text!r}") from None
     if not isinstance(value, dict):
         raise ValueError(f"settings overrides must be a JSON object, got {text!r}")
     return value

@@ -36,8 +36,10 @@ def category_fragment(
     settings_hash: str,
     models_requested: int,
     upstream_failed: list[dict],
+    listing: str | None = None,
 ) -> dict:
-    """The manifest entry of one category after its shards were written."""
+    """The manifest entry of one category after its shards were written. ``listing`` is the key
+    of the source list it was built from (file sources only: a changed folder changes it)."""
     failed = sorted(upstream_failed + result.failed, key=lambda f: (f["model_id"], f.get("stage", "")))
     splits = {
         s: {"samples": sum(i.samples for i in result.shards.get(s, [])),
@@ -54,6 +56,8 @@ def category_fragment(
         "failed": failed,
         "splits": splits,
     }
+    if listing is not None:
+        frag["listing"] = listing
     frag["checksum"] = content_checksum(frag)
     return frag
 

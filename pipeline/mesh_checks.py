@@ -44,7 +44,7 @@ def check_input(
 
 
 def closed_surface_problems(mesh: trimesh.Trimesh, max_bodies: int = 1) -> list[str]:
-    """Reasons a mesh is not one closed, consistently oriented, outward-facing solid ([] if it is)."""
+    """Reasons a mesh is not closed, consistently oriented, outward-facing solids, at most ``max_bodies`` ([] if it is)."""
     problems = []
     if len(mesh.faces) == 0:
         return ["no faces"]

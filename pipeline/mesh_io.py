@@ -8,6 +8,7 @@ ModelError naming the file, so a batch can record it and move on.
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import re
 import stat
@@ -33,6 +34,8 @@ _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16":
               "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4,
               "double": 8, "float64": 8}
 _OBJ_LINE = re.compile(rb"^[ \t]*(v|vn|vt|f|o|g|mtllib|usemtl)[ \t]", re.M)
+_OBJ_ZERO = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)", re.M)  # a face corner "0", "0/..", "0//.."
+_BOM = b"\xef\xbb\xbf"
 
 
 def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -65,6 +68,8 @@ def sniff_format(head: bytes, size: int) -> str | None:
         return ".stl"
     if size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size:
         return ".stl"  # binary STL: the size matches the triangle count exactly
+    if head.lstrip().startswith(b"{") and b'"asset"' in head:
+        return ".gltf"  # glTF JSON (every glTF file has an "asset" object)
     if b"\0" not in head and _OBJ_LINE.search(head):
         return ".obj"
     return None
@@ -94,8 +99,8 @@ def check_container(path: Path, head: bytes, size: int) -> None:
         if head.startswith(magic):
             raise ModelError(path, f"not a mesh: the file is {what}")
     found = sniff_format(head, size)
-    family = ".glb" if ext == ".gltf" and found == ".glb" else ext
-    if found is not None and found != family and ext != ".gltf":
+    family = (".glb", ".gltf") if ext == ".gltf" else (ext,)
+    if found is not None and found not in family:
         raise ModelError(path, f"wrong extension: named {ext} but the content is {found[1:].upper()} data")
     binary_stl = ext == ".stl" and not head.lstrip().lower().startswith(b"solid")
     if found is None and ext != ".obj" and not binary_stl:
@@ -120,6 +125,53 @@ def check_container(path: Path, head: bytes, size: int) -> None:
         raise ModelError(path, f"truncated: GLB header declares {declared} bytes but the file has {size}")
 
 
+def _read_all(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
+
+
+def _data_lines(text: str) -> list[list[str]]:
+    """Non-empty lines of a text mesh as words, comments dropped."""
+    return [w for w in (line.split("#", 1)[0].split() for line in text.splitlines()) if w]
+
+
+def check_text_mesh(path: Path, data: bytes) -> None:
+    """Whole-file checks of text meshes the parsers get wrong: OBJ face indices of 0 (OBJ counts
+    from 1; a 0 silently becomes the last vertex), OFF counts that disagree with the data, and
+    ASCII PLY bodies shorter than their header declares."""
+    ext = path.suffix.lower()
+    if ext == ".obj":  # searched as bytes: an OBJ can be large, no decoded copy
+        m = _OBJ_ZERO.search(data)
+        if m is not None:
+            line = data.count(b"\n", 0, m.start()) + 1
+            raise ModelError(path, f"corrupt OBJ: face index 0 on line {line} (OBJ indices start at 1)")
+        return
+    text = data.decode("utf-8", "replace").lstrip("\ufeff")
+    if ext == ".off":
+        lines = _data_lines(text)
+        words = lines[0][1:] if lines else []
+        body = lines[1:]
+        if not words and body:  # counts on their own line after "OFF"
+            words, body = body[0], body[1:]
+        try:
+            nv, nf = int(words[0]), int(words[1])
+        except (IndexError, ValueError):
+            raise ModelError(path, "corrupt OFF: no vertex and face counts after the OFF line") from None
+        if len(body) != nv + nf:
+            what = "truncated or wrong OFF header counts" if len(body) < nv + nf else "wrong OFF header counts"
+            raise ModelError(path, f"{what}: the header declares {nv} vertices and {nf} faces "
+                                   f"({nv + nf} lines) but the file has {len(body)} data lines")
+    elif text.startswith("ply"):
+        header, _, body = text.partition("end_header")
+        counts = [int(w[2]) for w in _data_lines(header) if w[:1] == ["element"] and len(w) >= 3 and w[2].isdigit()]
+        rows = len(_data_lines(body))
+        if rows < sum(counts):
+            raise ModelError(path, f"truncated: ASCII PLY header declares {sum(counts)} data lines "
+                                   f"but the file has {rows}")
+
+
 def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n,3) float64 and triangle faces (m,3) int64 of a mesh file.
 
@@ -130,6 +182,8 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
     try:
         st = os.stat(path)
     except FileNotFoundError:
+        if os.path.islink(path):
+            raise ModelError(path, f"unreadable: broken link (points to {os.readlink(path)}, which does not exist)") from None
         raise ModelError(path, "unreadable: file not found") from None
     except PermissionError:
         raise ModelError(path, f"unreadable: {_DENIED} on a folder above it") from None
@@ -152,10 +206,18 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
     except OSError as exc:
         raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
     check_container(path, head, size)
+    bom = head.startswith(_BOM)
+    if path.suffix.lower() in (".obj", ".off") or (head.startswith(b"ply") and b"format ascii" in head):
+        check_text_mesh(path, _read_all(path))
     try:
         # force="mesh" flattens scenes (GLB, multi-object OBJ) applying node transforms;
         # process=False keeps the file's vertices untouched (watertighting repairs them anyway).
-        loaded = trimesh.load(str(path), force="mesh", process=False)
+        if bom:  # a UTF-8 byte order mark (Windows editors) would hide the first line from the parser
+            loaded = trimesh.load(io.BytesIO(_read_all(path)[len(_BOM):]), file_type=path.suffix.lower()[1:],
+                                  force="mesh", process=False,
+                                  resolver=trimesh.resolvers.FilePathResolver(str(path)))
+        else:
+            loaded = trimesh.load(str(path), force="mesh", process=False)
     except IndexError as exc:  # OBJ faces naming vertices the file doesn't have
         raise ModelError(path, f"unreadable: face indices out of range (truncated or corrupt file?): {exc}") from exc
     except Exception as exc:  # parsers raise anything from ValueError to struct.error

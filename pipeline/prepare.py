@@ -1,8 +1,11 @@
 """Mesh preparation: source mesh → watertight, decimated, verified, unit-sphere mesh + samples.
 
-Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, samples.npy, record.json}``,
-record last, so a killed batch resumes where it stopped. ``prepare_batch`` is what the Luigi task
-calls; ``prepare_model`` does one model and raises ModelError for bad input.
+Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, lines.ply, samples.npy,
+record.json}``, record last, so a killed batch resumes where it stopped. ``mesh.ply`` is the
+watertight solid the samples lie on; ``lines.ply`` is the cleaned source surface in the same
+frame, which the renderer draws (pipeline.line_mesh: it keeps the source's sharp edges).
+``prepare_batch`` is what the Luigi task calls; ``prepare_model`` does one model and raises
+ModelError for bad input.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import trimesh
 from pipeline.atomic import StorageError, write_npy
 from pipeline.errors import ModelError
 from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.line_mesh import line_mesh
 from pipeline.mesh_checks import check_input, closed_surface_problems
 from pipeline.mesh_io import load_mesh, sha256_file, write_ply
 from pipeline.normalize import apply_transform, transform_box, unit_sphere_transform
@@ -26,15 +30,19 @@ from pipeline.sampling import sample_surface
 from pipeline.seeding import derive_seed, rng_for
 from pipeline.watertight import clean_solid, decimate, make_watertight
 
-__all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
+__all__ = ["LINE_MESH_FILE", "MESH_FILE", "PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
 MESH_FILE = "mesh.ply"
+LINE_MESH_FILE = "lines.ply"  # what the render stage draws
 SAMPLES_FILE = "samples.npy"
 METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
+    "line_mesh": "source mesh under the same normalization, vertices merged, degenerate and duplicate"
+                 " faces removed, winding made consistent and outward per body, long slivers split, decimated"
+                 " keeping sharp edges above max_line_faces (pipeline.line_mesh)",
 }
 
 
@@ -81,6 +89,20 @@ def repair_mesh(
     raise ModelError(path, f"repair failed verification: {detail}")
 
 
+TINY_DIAGONAL = 1e-2
+
+
+def pre_scale(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """(centre, factor) mapping a model under TINY_DIAGONAL across to unit size for repair;
+    (None, 1) for every other model, which is repaired exactly as it is."""
+    used = vertices[np.unique(faces)]
+    lo, hi = used.min(axis=0), used.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    if diag >= TINY_DIAGONAL:
+        return None, 1.0
+    return (lo + hi) / 2.0, diag
+
+
 def _read_sidecar(path: Path) -> dict | None:
     """The procedural generator's sidecar (part labels, cuboids, defects) if the source has one."""
     side = path.with_suffix(".json")
@@ -123,14 +145,23 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
 
     # The Manifold octree seed is keyed like every other random choice (int32 range for the C++).
     wt_seed = derive_seed(settings.seed, "prepare-watertight", ref.category, ref.model_id) % (2**31 - 1)
-    mesh, repair = repair_mesh(path, vertices, faces, settings, wt_seed, timings)
+    # Manifold's tolerances are absolute: a model under ~1e-3 units across (a part in km, a CAD
+    # export in mm read as m) is repaired at unit size, and the pre-scale folded into the record.
+    c0, k0 = pre_scale(vertices, faces)
+    mesh, repair = repair_mesh(path, vertices if c0 is None else (vertices - c0) / k0, faces, settings,
+                               wt_seed, timings)
 
     t = time.perf_counter()
-    center, scale = unit_sphere_transform(mesh.vertices)
+    c1, s1 = unit_sphere_transform(mesh.vertices)
+    center, scale = (c1, s1) if c0 is None else (c0 + c1 * k0, s1 * k0)
     # Quantize to float32 (what the PLY stores) before sampling so samples lie on the stored mesh.
-    norm_v = apply_transform(mesh.vertices, center, scale).astype(np.float32).astype(np.float64)
+    norm_v = apply_transform(mesh.vertices, c1, s1).astype(np.float32).astype(np.float64)
     final = trimesh.Trimesh(norm_v, mesh.faces, process=False)
     timings["normalize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    lines = line_mesh(vertices, faces, center, scale, settings.max_line_faces)
+    timings["line_mesh"] = time.perf_counter() - t
 
     t = time.perf_counter()
     samples = sample_surface(final, settings.n_samples, rng_for(settings.seed, "prepare", ref.category, ref.model_id))
@@ -138,6 +169,7 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
 
     t = time.perf_counter()
     write_ply(out_dir / MESH_FILE, final.vertices, final.faces)
+    write_ply(out_dir / LINE_MESH_FILE, lines.vertices, lines.faces)
     write_npy(out_dir / SAMPLES_FILE, samples)
     timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
@@ -149,10 +181,12 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
         "normalization": {"center": center.tolist(), "scale": scale},
         "faces": {"input": int(len(faces)), "watertight": repair["watertight_faces"], "output": int(len(final.faces))},
         "vertices": {"input": int(len(vertices)), "output": int(len(final.vertices))},
+        "bodies": int(final.body_count),
+        "line_mesh": {"faces": int(len(lines.faces)), "vertices": int(len(lines.vertices))},
         "method": {**METHOD, "resolution": repair["resolution"], "attempts": repair["attempts"],
                    "rejected_attempts": repair["rejected"], "max_faces": settings.max_faces},
         "n_samples": int(len(samples)),
-        "files": {"mesh": MESH_FILE, "samples": SAMPLES_FILE},
+        "files": {"mesh": MESH_FILE, "line_mesh": LINE_MESH_FILE, "samples": SAMPLES_FILE},
         "settings": dataclasses.asdict(settings),
         "timings": {k: round(v, 4) for k, v in timings.items()},
     }

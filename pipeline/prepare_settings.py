@@ -18,10 +18,22 @@ class PrepareSettings:
     max_input_faces: int = 2_000_000
     max_input_bytes: int = 1 << 30
     max_abs_coordinate: float = 1e5
-    # Repair acceptance: components smaller than this fraction of the largest are debris; more
-    # than max_bodies remaining volumes fails verification.
+    # Repair acceptance: components smaller than this fraction of the largest (by area) are
+    # debris and dropped; every other body is kept (wheels, engines, caps are separate bodies in
+    # real models). More than max_bodies remaining volumes is shattered input and fails.
     min_component_fraction: float = 0.01
-    max_bodies: int = 1
+    max_bodies: int = 32
+    # The line mesh (the cleaned source surface the renderer draws) is decimated, edges kept,
+    # above this many faces so a view stays within the render time target.
+    max_line_faces: int = 20000
     # When the repaired mesh fails verification, retry at resolution / 2 this many times (a
     # coarser envelope fuses nearly-touching parts and decimates less).
     fallback_attempts: int = 2
+
+    def __post_init__(self) -> None:
+        # out-of-range values would record every model as bad input instead of stopping the build
+        for name in ("resolution", "max_faces", "n_samples", "max_input_faces", "max_input_bytes", "max_bodies"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not self.max_abs_coordinate > 0 or not 0.0 <= self.min_component_fraction < 1.0 or self.fallback_attempts < 0:
+            raise ValueError("max_abs_coordinate must be > 0, min_component_fraction in [0, 1), fallback_attempts >= 0")

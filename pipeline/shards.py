@@ -196,6 +196,7 @@ def assemble_sample(
         **_source_fields(prep, portable),
         "normalization": prep.get("normalization"),
         "part_labels": _part_labels(prep),
+        "bodies": prep.get("bodies"),  # separate volumes of the prepared mesh (None: older record)
         "seed": seed,
         "settings_hash": settings_hash,
         "split": split_of(category, dirs.model_id, settings.split_fractions),

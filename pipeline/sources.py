@@ -11,11 +11,12 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from pipeline.config import stage_key
 from pipeline.layout import ModelRef
 from pipeline.mesh_io import MESH_EXTENSIONS
+from pipeline.shards import sample_key
 
 # ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
 # largest gun class, and what the procedural guns imitate); pass "03948459" to read pistols.
@@ -84,15 +85,37 @@ def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
     folder = root / synset
     if not folder.is_dir():
         return
-    for entry in _sorted_entries(folder):
-        if entry.is_dir() and not entry.name.startswith("."):
-            # The path is reported even when the file is missing: prepare records that failure.
-            yield ModelRef(name, entry.name, Path(entry.path) / SHAPENET_MODEL_FILE, "shapenet")
+    # The path is reported even when the file is missing: prepare records that failure.
+    yield from unique_ids(ModelRef(name, e.name, Path(e.path) / SHAPENET_MODEL_FILE, "shapenet")
+                          for e in _sorted_entries(folder) if e.is_dir() and not e.name.startswith("."))
+
+
+class ModelIdClash(ValueError):
+    """Two source files of one category would become the same sample; the message names both."""
+
+
+def unique_ids(refs: Iterable[ModelRef]) -> Iterator[ModelRef]:
+    """Pass ``refs`` through, raising ModelIdClash at the first two whose sample keys would be equal.
+
+    Keys are compared case-folded too: on a case-insensitive disk (macOS, Windows shares) two
+    such models would share one work folder.
+    """
+    seen: dict[str, ModelRef] = {}
+    for ref in refs:
+        key = sample_key(ref.category, ref.model_id)
+        other = seen.setdefault(key.casefold(), ref)
+        if other is not ref:
+            raise ModelIdClash(
+                f"{ref.category}: {other.path.name!r} and {ref.path.name!r} would both be model "
+                f"{key!r} (ids are file names without extension, '.' read as '_'); rename one of them")
+        yield ref
 
 
 def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
-    """Mesh files directly in ``<root>/<category>/``, id = file stem (full name if stems clash).
+    """Mesh files directly in ``<root>/<category>/``, id = file name without its last extension.
 
+    The id depends on the file's own name only, so adding or removing other files never renames
+    a model; two files that would get the same sample key raise ModelIdClash naming both.
     Every entry named like a mesh is listed, even one that is not a readable file (a directory,
     a FIFO, a broken link): prepare then records why it can't be read instead of skipping it.
     """
@@ -103,10 +126,7 @@ def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
         e for e in _sorted_entries(folder)
         if not e.name.startswith(".") and Path(e.name).suffix.lower() in MESH_EXTENSIONS
     ]
-    stems = [Path(e.name).stem for e in files]
-    for entry, stem in zip(files, stems):
-        model_id = stem if stems.count(stem) == 1 else entry.name
-        yield ModelRef(category, model_id, Path(entry.path), "folder")
+    yield from unique_ids(ModelRef(category, Path(e.name).stem, Path(e.path), "folder") for e in files)
 
 
 def procedural_source_dir(work_dir: Path, seed: int) -> Path:

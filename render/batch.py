@@ -13,6 +13,7 @@ import os
 import queue
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -22,10 +23,11 @@ from pathlib import Path
 
 from pipeline.errors import ModelError
 from pipeline.layout import Progress, model_dir, read_record, write_failed
-from render.job import PROGRESS_PREFIX, write_job
+from render.job import PARENT_ENV, PROGRESS_PREFIX, write_job
 from render.settings import RenderSettings
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
+JOB_PREFIX = ".render-job-"
 
 
 class RenderBatchError(RuntimeError):
@@ -59,7 +61,8 @@ def _run_worker(category: str, pending: list[tuple[str, Path]], stage_dir: Path,
                 settings: RenderSettings, seed: int, progress: Progress, on_crash: str,
                 done0: int, total: int) -> None:
     (stage_dir / category).mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=".render-job-", dir=stage_dir / category))
+    remove_stale_jobs(stage_dir / category)
+    work = Path(tempfile.mkdtemp(prefix=f"{JOB_PREFIX}{socket.gethostname()}-{os.getpid()}-", dir=stage_dir / category))
     try:
         job_path = work / "job.json"
         write_job(job_path, category, pending, stage_dir, settings, seed, work / "scratch")
@@ -89,12 +92,36 @@ def _run_worker(category: str, pending: list[tuple[str, Path]], stage_dir: Path,
         shutil.rmtree(work, ignore_errors=True)
 
 
+def remove_stale_jobs(folder: Path) -> list[Path]:
+    """Delete job folders left by a killed run: those named for this host and a process that no
+    longer exists (other hosts' folders are left alone: their owners may still be rendering)."""
+    removed = []
+    for job in Path(folder).glob(f"{JOB_PREFIX}*"):
+        host, _, rest = job.name[len(JOB_PREFIX):].rpartition("-")[0].rpartition("-")
+        pid = int(rest) if rest.isdigit() else 0
+        if host == socket.gethostname() and pid > 0 and not _alive(pid):
+            shutil.rmtree(job, ignore_errors=True)
+            removed.append(job)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Progress,
                done0: int, total: int, current: list[str]) -> str | None:
     """Run the worker; None if it exited cleanly, else a sentence saying how it died."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(PROJECT_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
     env.setdefault("OMP_NUM_THREADS", "1")
+    env[PARENT_ENV] = str(os.getpid())  # the worker ends itself if this process dies
     lines: queue.Queue[str | None] = queue.Queue()
     with open(stderr_path, "wb") as err:
         proc = subprocess.Popen(worker_command(job_path), stdout=subprocess.PIPE, stderr=err,

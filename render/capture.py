@@ -86,11 +86,16 @@ class StrokeRecorder:
 
 
 def _stroke_entry(points: list[list[float]], seg_types: list[str]) -> dict:
-    """Type a stroke by the nature under most of its vertices (ties: the _TYPE_ORDER order)."""
     counts: dict[str, int] = {}
     for t in seg_types:
         if t:  # "" marks a vertex without a feature edge under it
             counts[t] = counts.get(t, 0) + 1
+    return typed_stroke(points, counts)
+
+
+def typed_stroke(points: list[list[float]], counts: dict[str, int]) -> dict:
+    """A strokes.json entry: typed by the nature under most of its vertices (``counts``: vertices
+    per nature; ties: the _TYPE_ORDER order)."""
     if counts:
         rank = {t: i for i, t in enumerate(_TYPE_ORDER)}
         main = max(counts, key=lambda t: (counts[t], -rank.get(t, len(rank))))

@@ -9,12 +9,15 @@ from pipeline.atomic import read_json, write_json
 from render.settings import RenderSettings
 
 PROGRESS_PREFIX = "@@render-progress "
+PARENT_ENV = "SKETCH_RENDER_PARENT"  # pid of the process that started the worker
 
 
 def settings_from_dict(d: dict) -> RenderSettings:
     d = dict(d)
     if "elevation_range" in d:
         d["elevation_range"] = tuple(float(x) for x in d["elevation_range"])
+    if "edge_types" in d:
+        d["edge_types"] = tuple(d["edge_types"])
     return RenderSettings(**d)
 
 

@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 
 from render.cameras import View, blender_matrix_world
-from render.settings import RenderSettings
+from render.settings import EDGE_TYPES, RenderSettings
 
 MODEL_NAME = "model"
 
@@ -76,12 +76,8 @@ def _setup_freestyle(scene: bpy.types.Scene, settings: RenderSettings) -> None:
     ls.select_by_edge_types = True
     ls.edge_type_negation = "INCLUSIVE"
     ls.edge_type_combination = "OR"
-    for flag in ("select_silhouette", "select_border", "select_crease", "select_contour",
-                 "select_external_contour"):
-        setattr(ls, flag, True)
-    for flag in ("select_suggestive_contour", "select_ridge_valley", "select_material_boundary",
-                 "select_edge_mark"):
-        setattr(ls, flag, False)
+    for edge_type in EDGE_TYPES:
+        setattr(ls, f"select_{edge_type}", edge_type in settings.edge_types)
     style = bpy.data.linestyles.new("ink")
     style.color = (0.0, 0.0, 0.0)
     style.alpha = 1.0

@@ -6,6 +6,10 @@ import dataclasses
 import math
 
 RIGS = ("random", "front_side_top")
+BACKENDS = ("freestyle", "embree")
+# Freestyle edge types a lineset can select (names of its ``select_<type>`` flags).
+EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour", "suggestive_contour",
+              "ridge_valley", "material_boundary", "edge_mark")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -16,6 +20,7 @@ class RenderSettings:
     from ``elevation_range``; rig "front_side_top": three fixed cameras (``views`` is ignored).
     """
 
+    backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
     views: int = 8
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
@@ -25,6 +30,9 @@ class RenderSettings:
     sensor_mm: float = 36.0
     margin: float = 1.08           # the unit sphere fills 1/margin of the half-frame
     crease_angle_deg: float = 134.43   # Blender's default; dihedral angles below it are creases
+    # what is drawn: the paper's occluding contours (silhouette, contours) and sharp edges
+    # (crease), plus borders of open surfaces; visible lines only
+    edge_types: tuple[str, ...] = ("silhouette", "border", "crease", "contour", "external_contour")
     smooth_shading: bool = True    # smooth silhouettes on curved parts; edges at creases stay sharp
     line_thickness: float = 1.5    # pixels
     min_stroke_px: float = 0.0     # drop strokes shorter than this; >0 also opens gaps in noisy outlines
@@ -35,10 +43,15 @@ class RenderSettings:
     startup_timeout_s: float = 60.0
 
     def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.rig not in RIGS:
             raise ValueError(f"rig must be one of {RIGS}, got {self.rig!r}")
         if self.image_size < 8 or self.views < 1:
             raise ValueError("image_size must be >= 8 and views >= 1")
+        unknown = set(self.edge_types) - set(EDGE_TYPES)
+        if unknown or not self.edge_types:
+            raise ValueError(f"edge_types must be a non-empty subset of {EDGE_TYPES}, got {self.edge_types!r}")
         lo, hi = self.elevation_range
         if not -90.0 < lo <= hi < 90.0:
             raise ValueError(f"elevation_range must lie in (-90, 90): {self.elevation_range}")

@@ -65,11 +65,15 @@ def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
             shown += 1
     if not any(rows):
         raise SystemExit(f"no rendered models under {stage_dir}")
-    # pad rows with blank tiles so each model starts a new row
+    return sheet_of_rows(rows)
+
+
+def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
+    """Contact sheet with one row per list of (image, label), padded with blank tiles."""
     cols = max(len(r) for r in rows)
-    blank = np.full_like(rows[0][0][0], 255)
+    blank = np.full_like(next(r for r in rows if r)[0][0], 255)
     images = [img for r in rows for img, _ in r + [(blank, "")] * (cols - len(r))]
-    labels = [lab for r in rows for _, lab in r + [(blank, "")] * (cols - len(r))]
+    labels = [lab for r in rows for _, lab in r + [("", "")] * (cols - len(r))]
     return contact_sheet(images, labels, cols=cols)
 
 
@@ -77,7 +81,7 @@ def render_procedural(work_dir: Path, categories: list[str], per_category: int, 
                       settings: RenderSettings) -> Path:
     """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
     from pipeline.config import stage_key
-    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
     from pipeline.sources import list_models
     from render.batch import render_batch
 
@@ -87,7 +91,7 @@ def render_procedural(work_dir: Path, categories: list[str], per_category: int, 
     for cat in categories:
         refs = list_models("procedural", cat, per_category, seed, work_dir)
         prepare_batch(refs, work_dir / prep_key, prep_settings, progress=_print_progress)
-        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / "mesh.ply") for r in refs
+        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / LINE_MESH_FILE) for r in refs
                  if (read_record(work_dir / prep_key / cat / r.model_id) or {}).get("status") == "ok"]
         render_batch(cat, items, work_dir / render_key, settings, seed, progress=_print_progress)
     return work_dir / render_key

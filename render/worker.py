@@ -1,4 +1,5 @@
-"""Render worker: ``python -m render.worker JOB.json`` renders a whole batch in one bpy process.
+"""Render worker: ``python -m render.worker JOB.json`` renders a whole batch in one process (bpy
+for the Freestyle backend, none for the embree backend, render.edge_lines).
 
 For every model of the job still without a record: load its mesh, render every view of its rig,
 write view_XX.png (8-bit grayscale, black lines on white), cameras.json, strokes.json and
@@ -25,7 +26,7 @@ from pipeline.errors import ModelError
 from pipeline.layout import model_dir, read_record, write_failed, write_ok
 from pipeline.sheets import encode_png
 from render import cameras
-from render.job import PROGRESS_PREFIX, read_job
+from render.job import PARENT_ENV, PROGRESS_PREFIX, read_job
 from render.settings import RenderSettings
 
 
@@ -85,28 +86,46 @@ def emit(done: int, total: int, message: str, current: str | None = None) -> Non
     sys.stdout.flush()
 
 
-def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path, out: Path,
-                 settings: RenderSettings, seed: int, scratch: Path) -> dict:
+def _freestyle_view(scene, recorder, view: cameras.View, settings: RenderSettings,
+                    tmp_png: Path) -> tuple[np.ndarray, list[dict]]:
+    """Render one view with Freestyle: the drawing (uint8 gray) and the strokes it captured."""
     from render import scene as sc
 
+    sc.set_camera(scene, view)
+    recorder.reset(settings.image_size, settings.join_gap_px)
+    sc.render_png(scene, tmp_png)
+    with Image.open(tmp_png) as im:
+        rgba = np.asarray(im.convert("RGBA"))
+    tmp_png.unlink()
+    return grayscale_on_white(rgba), list(recorder.strokes)
+
+
+def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path, out: Path,
+                 settings: RenderSettings, seed: int, scratch: Path) -> dict:
+    """Draw every view of one model; ``scene`` and ``recorder`` are None with the embree backend."""
     t0 = time.perf_counter()
     vertices, faces = load_mesh(mesh_path)
-    sc.set_mesh(scene, vertices, faces,
-                smooth_below_deg=180.0 - settings.crease_angle_deg if settings.smooth_shading else None)
+    if scene is None:  # the "embree" backend: no Blender scene
+        from render.edge_lines import MeshLines
+
+        lines = MeshLines(vertices, faces, settings)
+    else:
+        from render import scene as sc
+
+        sc.set_mesh(scene, vertices, faces,
+                    smooth_below_deg=180.0 - settings.crease_angle_deg if settings.smooth_shading else None)
     t_load = time.perf_counter() - t0
     views = cameras.rig(settings, seed, category, model_id)
     strokes_per_view, view_times, view_cpu = [], [], []
     for i, view in enumerate(views):
         t, c = time.perf_counter(), time.process_time()
-        sc.set_camera(scene, view)
-        recorder.reset(settings.image_size, settings.join_gap_px)
-        tmp_png = scratch / f"{category}_{model_id}_{i:02d}.png"
-        sc.render_png(scene, tmp_png)
-        with Image.open(tmp_png) as im:
-            rgba = np.asarray(im.convert("RGBA"))
-        tmp_png.unlink()
-        write_bytes(out / f"view_{i:02d}.png", encode_png(grayscale_on_white(rgba)))
-        strokes_per_view.append(list(recorder.strokes))
+        if scene is None:
+            gray, strokes = lines.draw(view)
+        else:
+            gray, strokes = _freestyle_view(scene, recorder, view, settings,
+                                            scratch / f"{category}_{model_id}_{i:02d}.png")
+        write_bytes(out / f"view_{i:02d}.png", encode_png(gray))
+        strokes_per_view.append(strokes)
         view_times.append(round(time.perf_counter() - t, 4))
         view_cpu.append(round(time.process_time() - c, 4))
     write_json(out / "cameras.json", {"image_size": settings.image_size,
@@ -132,15 +151,22 @@ def run_job(job_path: Path) -> int:
 
     import trimesh  # noqa: F401  (imported here so its ~1 s counts as start-up, not model time)
 
-    with thread_pool_limited(settings.threads):
-        from render import scene as sc
-        from render.capture import StrokeRecorder
+    scene = recorder = None
+    if settings.backend == "freestyle":
+        with thread_pool_limited(settings.threads):
+            from render import scene as sc
+            from render.capture import StrokeRecorder
 
-        scene = sc.build_scene(settings)
-    recorder = StrokeRecorder()
-    recorder.install()
+            scene = sc.build_scene(settings)
+        recorder = StrokeRecorder()
+        recorder.install()
+        ready = "blender ready"
+    else:
+        import render.edge_lines  # noqa: F401  (start-up: scipy, embreex)
+
+        ready = f"{settings.backend} backend ready"
     items = job["items"]
-    emit(0, len(items), f"blender ready in {time.perf_counter() - t0:.2f}s"
+    emit(0, len(items), f"{ready} in {time.perf_counter() - t0:.2f}s"
                         f" ({time.process_time():.2f}s CPU since process start)")
     for k, item in enumerate(items):
         model_id, mesh_path = item["model_id"], Path(item["mesh"])
@@ -164,7 +190,32 @@ def run_job(job_path: Path) -> int:
     return 0
 
 
+def die_with_parent() -> None:
+    """End this worker when the process that started it dies (kill -9 included), so no orphan
+    keeps rendering into the work folder: Linux's PR_SET_PDEATHSIG, else a watchdog thread."""
+    expected = int(os.environ.get(PARENT_ENV, "0")) or os.getppid()
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, signal.SIGKILL, 0, 0, 0) != 0:  # 1 = PR_SET_PDEATHSIG
+            raise OSError(ctypes.get_errno(), "prctl")
+    except (OSError, AttributeError):
+        import threading
+
+        def watch() -> None:
+            while os.getppid() == expected:
+                time.sleep(1.0)
+            os._exit(1)
+
+        threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != expected:  # the parent died before the line above took effect
+        os._exit(1)
+
+
 def main(argv: list[str] | None = None) -> int:
+    die_with_parent()
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 1:
         print("usage: python -m render.worker JOB.json", file=sys.stderr)

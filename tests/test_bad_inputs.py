@@ -16,7 +16,7 @@ import webdataset as wds
 
 sys.path.insert(0, str(Path(__file__).parent))
 from as_user import call_as  # noqa: E402
-from bad_inputs import GOOD, write_corpus, write_good, write_unreadable  # noqa: E402
+from bad_inputs import write_corpus, write_good, write_unreadable, write_unusual_good  # noqa: E402
 
 from pipeline.manifest import read_manifest  # noqa: E402
 from pipeline.mesh_io import _DENIED, load_mesh  # noqa: E402
@@ -29,13 +29,15 @@ from workflows import BuildDataset  # noqa: E402
 def test_corpus_fails_file_by_file_in_prepare(tmp_path: Path) -> None:
     src = tmp_path / "src" / "mug"
     expect = write_corpus(src)
-    write_good(src)
+    good = write_good(src) + write_unusual_good(src)
+    assert len(expect) >= 40
     refs = list_models(str(tmp_path / "src"), "mug", None, 0, tmp_path / "work")
     # every entry named like a mesh is listed, including the folder, the FIFO and the dead link
-    assert sorted(r.model_id for r in refs) == sorted([*expect, *GOOD])
+    assert sorted(r.model_id for r in refs) == sorted([*expect, *good])
     records = prepare_batch(refs, tmp_path / "stage", PrepareSettings())
     by_id = {r.model_id: (r, rec) for r, rec in zip(refs, records)}
-    for mid in GOOD:
+    assert by_id["tiny"][1]["normalization"]["scale"] < 1e-4  # read at its own scale, normalized
+    for mid in good:
         assert by_id[mid][1]["status"] == "ok", by_id[mid][1]
     for mid, words in expect.items():
         ref, rec = by_id[mid]
@@ -89,7 +91,7 @@ def test_build_with_bad_corpus_lists_every_failure(tmp_path: Path) -> None:
     """Whole Luigi build (real Blender for the two good models, ~11 s)."""
     src = tmp_path / "src" / "mug"
     expect = write_corpus(src)
-    write_good(src)
+    good = write_good(src) + write_unusual_good(src)
     names = {p.stem: p.name for p in src.iterdir()}
     ok = luigi.build([BuildDataset(source=str(tmp_path / "src"), models_per_category=0, views=1, variants=1,
                                    image_size=64, out_size=64, batch_size=8, work_dir=str(tmp_path / "work"),
@@ -103,7 +105,7 @@ def test_build_with_bad_corpus_lists_every_failure(tmp_path: Path) -> None:
         f = failed[mid]
         assert f["stage"] == "prepare" and f["path"] == f"mug/{names[mid]}", f
         assert words.lower() in f["reason"].lower(), (mid, f["reason"])
-    assert cat["models_built"] == len(GOOD) and cat["models_failed"] == len(expect)
+    assert cat["models_built"] == len(good) and cat["models_failed"] == len(expect)
     keys = [s["__key__"] for s in wds.WebDataset([str(p) for p in list_shards(tmp_path / "ds" / "mug")],
                                                  shardshuffle=False)]
-    assert sorted(keys) == sorted(f"mug_{m}" for m in GOOD)
+    assert sorted(keys) == sorted(f"mug_{m}" for m in good)

@@ -3,6 +3,7 @@ import torch
 
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import eval_surface, iges_text, read_iges, write_iges
+from train.export.units import CadUnits
 from train.geometry.coons import coons_points
 
 from test_export_bicubic import random_patches
@@ -11,7 +12,7 @@ from test_export_bicubic import random_patches
 def test_iges_roundtrip_matches_coons_patches(tmp_path):
     patches = random_patches(4, seed=3) * 10.0
     path = tmp_path / "p.igs"
-    write_iges(path, coons_to_bezier(patches))
+    write_iges(path, coons_to_bezier(patches), CadUnits("mm", 1.0))  # file numbers = model coordinates
     lines = path.read_text().splitlines()
     assert all(len(line) == 80 for line in lines)
     assert [line[72] for line in lines][0] == "S" and lines[-1][72] == "T"

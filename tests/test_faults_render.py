@@ -11,6 +11,7 @@ import luigi
 from pipeline.build_settings import BuildSettings
 from pipeline.manifest import read_manifest
 from workflows import BuildCategory
+from pipeline.listing import current_listing
 from workflows.steps import batch_path
 
 # a timeout no Blender start can meet: the worker "hangs" from the supervisor's point of view
@@ -24,7 +25,7 @@ def test_hung_render_batch_is_retried_then_recorded(tmp_path: Path) -> None:
     assert luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")
     s = BuildSettings(models_per_category=2, batch_size=2, views=1, variants=1, image_size=64, out_size=64,
                       render_overrides=HANG, work_dir=tmp_path / "work", dataset_dir=tmp_path / "ds")
-    doc = json.loads(batch_path(s, "render", "mug", 0).read_text())
+    doc = json.loads(batch_path(s, "render", current_listing(s, "mug"), 0).read_text())
     assert doc["attempts"] == 2 and len(doc["crashes"]) == 1  # crash_retries = 1 (luigi.cfg)
     assert "timed out" in doc["crashes"][0]
     cat = read_manifest(tmp_path / "ds")["categories"]["mug"]
@@ -32,4 +33,4 @@ def test_hung_render_batch_is_retried_then_recorded(tmp_path: Path) -> None:
     for f in cat["failed"]:
         assert f["stage"] == "render"
         assert "render worker timed out after 0.3 s and was killed" in f["reason"], f
-        assert f["path"].endswith("mesh.ply")
+        assert f["path"].endswith("lines.ply")  # the render stage draws the line mesh

@@ -112,7 +112,8 @@ def test_preparation_is_byte_deterministic(tmp_path):
     for run in range(2):
         prepare_model(_ref(src), tmp_path / f"run{run}", FAST)
         outs.append(((tmp_path / f"run{run}" / "mesh.ply").read_bytes(),
-                     (tmp_path / f"run{run}" / "samples.npy").read_bytes()))
+                     (tmp_path / f"run{run}" / "samples.npy").read_bytes(),
+                     (tmp_path / f"run{run}" / "lines.ply").read_bytes()))
     assert outs[0] == outs[1]
     # A different model id draws different samples (keyed generator, not a global one).
     prepare_model(_ref(src, model_id="other"), tmp_path / "run2", FAST)
@@ -140,8 +141,9 @@ def _bad_inputs(tmp: Path) -> dict[str, tuple[Path, str]]:
     far = trimesh.creation.box()
     far.apply_translation([1e9, 0, 0])
     cases["huge_coords"] = (_write(tmp, "far.obj", far), "huge")
-    apart = trimesh.util.concatenate([trimesh.creation.box(), trimesh.creation.box().apply_translation([10, 0, 0])])
-    cases["two_volumes"] = (_write(tmp, "apart.obj", apart), "repair failed verification")
+    # Shattered input: more equal-sized separate pieces than max_bodies (separate parts are kept).
+    grains = [trimesh.creation.box((0.2, 0.2, 0.2)).apply_translation([i % 10, i // 10, 0]) for i in range(70)]
+    cases["shattered"] = (_write(tmp, "shattered.obj", trimesh.util.concatenate(grains)), "repair failed verification")
     return cases
 
 
@@ -164,7 +166,7 @@ def test_bad_inputs_are_recorded_and_batch_completes(tmp_path):
         # The failure is on disk, so a re-run skips it rather than crashing again.
         assert read_record(tmp_path / "stage" / "test" / model_id)["status"] == "failed"
         assert not (tmp_path / "stage" / "test" / model_id / "mesh.ply").exists()
-    assert "2 separate volumes" in by_id["two_volumes"]["error"]["reason"]
+    assert "70 separate volumes (max 32)" in by_id["shattered"]["error"]["reason"]
 
 
 def test_batch_skips_finished_models(tmp_path):
@@ -183,8 +185,11 @@ def test_batch_skips_finished_models(tmp_path):
 
 def test_unexpected_exception_is_recorded(tmp_path):
     src = _write(tmp_path, "a.obj", trimesh.creation.box())
-    # An impossible setting makes the sampler raise a plain ValueError deep inside trimesh/numpy.
-    records = prepare_batch([_ref(src)], tmp_path / "stage", PrepareSettings(resolution=2000, n_samples=-1))
+    # An impossible setting makes the sampler raise a plain ValueError deep inside trimesh/numpy
+    # (set past PrepareSettings' own check, which a build runs before anything else).
+    settings = PrepareSettings(resolution=2000)
+    object.__setattr__(settings, "n_samples", -1)
+    records = prepare_batch([_ref(src)], tmp_path / "stage", settings)
     assert records[0]["status"] == "failed"
     assert "Error" in records[0]["error"]["reason"]
 

@@ -215,3 +215,17 @@ def test_contact_sheet_from_stage(rendered, tmp_path):
     out = tmp_path / "sheet.png"
     assert main(["--stage-dir", str(rendered["stage"]), "--out", str(out)]) == 0
     assert Image.open(out).size == (plain.shape[1], plain.shape[0])
+
+
+def test_edge_types_setting_selects_what_is_drawn(rendered, tmp_path):
+    """edge_types decides which Freestyle lines are drawn: the closed wedge has no borders, so
+    drawing borders only leaves its views blank, while the defaults ink its outline."""
+    with pytest.raises(ValueError, match="edge_types"):
+        RenderSettings(edge_types=("silhouette", "outline"))
+    wedge = [(mid, p) for mid, p in rendered["items"] if mid == "wedge"]
+    s = RenderSettings(views=2, image_size=128, edge_types=("border",))
+    render_batch(CATEGORY, wedge, tmp_path, s, SEED)
+    borders = read_json(tmp_path / CATEGORY / "wedge" / "strokes.json")["views"]
+    for i in range(2):
+        assert borders[i] == [] and (ink(tmp_path / CATEGORY / "wedge", i) < 128).sum() == 0
+        assert (ink(model_out(rendered, "wedge"), i) < 128).sum() > 100

@@ -20,7 +20,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    from pipeline.prepare import PrepareSettings, prepare_batch
+    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
     from pipeline.shapes import CATEGORIES
     from pipeline.sources import list_models
 
@@ -29,7 +29,7 @@ def prepared(tmp_path_factory):
     for cat in CATEGORIES:
         refs = list_models("procedural", cat, 1, 0, work)
         recs = prepare_batch(refs, work / "prepare", PrepareSettings())
-        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / "mesh.ply")
+        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / LINE_MESH_FILE)
                     for r, rec in zip(refs, recs) if rec["status"] == "ok"]
     return work, out
 
@@ -45,7 +45,9 @@ def check_model(folder: Path, mesh_path: Path, n_views: int, size: int) -> None:
         ys, xs = np.nonzero(a < 250)
         uv = project(np.array(view["projection"]), mesh.vertices)
         ink_box = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
-        assert np.abs(ink_box - np.r_[uv.min(0), uv.max(0)]).max() <= 2.0
+        # 3 px: on the coarse source tessellation (a mug's 45° bottom bevel is two faces) the
+        # smooth silhouette runs inside the polygon's extreme vertices by up to ~2.5 px
+        assert np.abs(ink_box - np.r_[uv.min(0), uv.max(0)]).max() <= 3.0
         assert {s["type"] for s in strokes[i]} & {"silhouette", "border"}
         pts = np.concatenate([np.asarray(s["points"]) for s in strokes[i]])
         dist = ndimage.distance_transform_edt(a >= 200)
@@ -93,3 +95,30 @@ def test_fragment_joining_only_chains_captured_points(prepared, tmp_path):
         # every joined point is a captured point (nothing moved or invented)
         raw_pts = {tuple(p) for s in raw[i] for p in s["points"]}
         assert {tuple(p) for s in joined[i] for p in s["points"]} <= raw_pts
+
+
+def test_line_mesh_drawings_are_faithful_and_byte_identical(prepared, tmp_path):
+    """The car's line mesh drawn twice: same bytes; its source's sharp edges are inked and the
+    ink lies on the source's lines (bench/bench_lines.py measures this per category)."""
+    from pipeline.line_mesh import line_mesh
+    from pipeline.layout import read_record
+    from pipeline.mesh_io import load_mesh
+    from render.line_fidelity import ViewScore, score_view
+
+    work, items = prepared
+    s = RenderSettings(views=3)
+    for run in ("a", "b"):
+        render_batch("car", items["car"], tmp_path / run, s, seed=0)
+    mid = items["car"][0][0]
+    for name in ("view_00.png", "view_01.png", "view_02.png", "strokes.json", "cameras.json"):
+        assert (tmp_path / "a" / "car" / mid / name).read_bytes() == (tmp_path / "b" / "car" / mid / name).read_bytes()
+    rec = read_record(work / "prepare" / "car" / mid)
+    norm = rec["normalization"]
+    source = line_mesh(*load_mesh(rec["source"]["path"]), np.array(norm["center"]), norm["scale"], 1 << 62)
+    cams = read_json(tmp_path / "a" / "car" / mid / "cameras.json")["views"]
+    total = ViewScore(0, 0, 0, 0)
+    for i, cam in enumerate(cams):
+        gray = np.asarray(Image.open(tmp_path / "a" / "car" / mid / f"view_{i:02d}.png"))
+        total = total + score_view(source, cam, gray, 180.0 - s.crease_angle_deg)
+    assert total.sharp_total > 500
+    assert total.recall >= 0.9 and total.precision >= 0.95, (total.recall, total.precision)

@@ -35,7 +35,8 @@ def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, va
     write_npy(prep / "samples.npy", pts)
     write_json(prep / "record.json", {
         "status": "ok", "source": {"path": str(root / "src" / f"{model_id}.obj"), "sha256": "ab" * 32},
-        "normalization": {"center": [0, 0, 0], "scale": 1.0}, "part_labels": ["body", "handle"]})
+        "normalization": {"center": [0, 0, 0], "scale": 1.0}, "part_labels": ["body", "handle"],
+        "bodies": 2})
     write_json(rend / "cameras.json", {"image_size": 64, "views": [{"azimuth_deg": 30.0 * v} for v in range(views)]})
     write_json(rend / "record.json", {"status": "ok"})
     aug.mkdir(parents=True, exist_ok=True)
@@ -72,6 +73,7 @@ def test_sample_members_and_meta(tmp_path: Path) -> None:
     assert meta["source"] == "00003.obj" and meta["source_sha256"] == "ab" * 32
     assert meta["part_labels"] == ["body", "handle"] and meta["seed"] == 5 and meta["settings_hash"] == "h123"
     assert meta["split"] == split_of("mug", "00003")
+    assert meta["bodies"] == 2  # the prepared mesh's body count, carried from the prepare record
 
 
 def test_shards_bytes_fixed_and_readable_by_webdataset(tmp_path: Path) -> None:

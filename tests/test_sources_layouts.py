@@ -13,6 +13,7 @@ from pipeline.sources import (
     detect_layout,
     iter_models,
     list_categories,
+    ModelIdClash,
     list_models,
 )
 
@@ -65,8 +66,9 @@ def test_folder_layout(tmp_path):
     refs = list_models(str(tmp_path), "chairs", None, 0, tmp_path / "w")
     assert [r.model_id for r in refs] == ["a", "b", "c", "d"]
     assert refs[0].path == tmp_path / "chairs" / "a.PLY" and refs[0].source == "folder"
-    # Two files with the same stem keep distinct ids.
-    assert [r.model_id for r in list_models(str(tmp_path), "mugs", None, 0, tmp_path / "w")] == ["x.obj", "x.off"]
+    # Two files that would be the same model: a clear error naming both, nothing listed.
+    with pytest.raises(ModelIdClash, match="'x.obj' and 'x.off' would both be model 'mugs_x'"):
+        list_models(str(tmp_path), "mugs", None, 0, tmp_path / "w")
     assert len(list_models(str(tmp_path), "chairs", 2, 0, tmp_path / "w")) == 2
 
 

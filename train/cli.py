@@ -7,6 +7,7 @@ import dataclasses
 import json
 import sys
 
+from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.losses.weights import LossWeights
 
 _ABLATE = ("normal", "flat", "collision", "template_normal", "symmetry")
@@ -72,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
     pr.add_argument("--out", required=True)
     pr.add_argument("--part", action="append", default=[], help="toggle an optional part, e.g. turbine=off")
+    pr.add_argument("--units", default=DEFAULT_UNITS, choices=sorted(MM_PER_UNIT), help="length unit declared in patches.stp / patches.igs")
+    pr.add_argument("--scale", type=float, default=None,
+                    help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)")  # fmt: skip
     it = sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)")
     it.add_argument("--checkpoint", required=True)
     it.add_argument("--sketch-a", nargs="+", required=True)
@@ -107,7 +111,14 @@ def main(argv: list[str] | None = None) -> int:
     elif a.cmd == "predict":
         from train.predict import predict
 
-        print(json.dumps(predict(a.checkpoint, a.sketch, a.out, _parts(a.part)), indent=1))
+        try:
+            units = CadUnits(a.units, a.scale)
+        except ValueError as exc:
+            raise SystemExit(f"--units/--scale: {exc}") from exc
+        res = predict(a.checkpoint, a.sketch, a.out, _parts(a.part), units)
+        print(json.dumps(res, indent=1))
+        # the verdict last, in words: a mesh can be watertight and still pass through itself
+        print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]))
     elif a.cmd == "interpolate":
         from train.interpolate import interpolate
 

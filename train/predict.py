@@ -1,9 +1,11 @@
 """Prediction from sketches and export of the result.
 
 Writes to the output folder: ``patches.json`` (template format with the predicted geometry),
-``patches.npy`` (P, 4, 4, 3), ``mesh.obj`` (welded watertight triangles), ``quads.obj`` (quad
-mesh from the subdivision integer program), ``patches.igs`` (exact bicubic NURBS, IGES 5.3) and
-``render.png``.
+``patches.npy`` (P, 4, 4, 3), ``mesh.obj`` (welded watertight triangles; its ``#`` header
+records the mesh checks), ``quads.obj`` (quad mesh from the subdivision integer program),
+``patches.stp`` (sewn B-rep solid, STEP AP214), ``patches.igs`` (exact bicubic NURBS, IGES 5.3)
+and ``render.png`` (self-intersecting faces in red). Meshes and ``patches.*`` stay in the model
+frame; the CAD files are scaled and unit-tagged by ``CadUnits``.
 """
 
 from __future__ import annotations
@@ -18,13 +20,16 @@ import torch
 from pipeline.atomic import write_npy
 from pipeline.errors import ModelError
 from pipeline.sheets import save_png
-from pipeline.thumbnails import render_mesh
+from pipeline.thumbnails import DEFAULT_COLOR, render_mesh
 from train.data import read_png, to_network
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import write_iges
 from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
+from train.export.step import write_step
+from train.export.units import CadUnits
 from train.fit import load_checkpoint, model_from_checkpoint
+from train.geometry.intersections import Intersections, mesh_intersections
 from train.model import SketchToPatches
 from train.templates import FreePoint, JunctionPoint, Template, load_template, save_template
 
@@ -62,28 +67,73 @@ def predicted_template(template: Template, params: torch.Tensor) -> Template:
                                metadata={**template.metadata, "predicted": True})  # fmt: skip
 
 
-def export_patches(patches: np.ndarray, out: str | Path, quad_alpha: float = 12.0, tri_alpha: float = 40.0) -> dict:
-    """All file exports of one patch set; returns a summary (counts, watertightness)."""
+def mesh_problems(edges: dict, hits: Intersections, step_solid: bool, free_edges: int) -> list[str]:
+    """What keeps an exported prediction from being clean, in words (empty list: clean)."""
+    problems = []
+    if not edges["watertight"]:
+        problems.append(f"mesh not watertight ({edges['boundary_edges']} boundary, {edges['nonmanifold_edges']} non-manifold edges)")
+    counts = hits.summary()
+    for key in ("self_intersecting_faces", "intersecting_patch_pairs", "folded_patches"):
+        if counts[key]:
+            problems.append(f"{counts[key]} {key.replace('_', ' ')}")
+    if not step_solid:
+        problems.append(f"STEP is an open shell, not a solid ({free_edges} free edges)")
+    return problems
+
+
+def _obj_header(edges: dict, hits: Intersections, units: CadUnits, problems: list[str]) -> list[str]:
+    pairs = " ".join(f"{a}-{b}" for a, b in hits.patch_pairs)
+    return [
+        "sketch2patch prediction mesh; model frame (unit-sphere normalized)",
+        f"cad_files: patches.stp patches.igs in {units.units}, scale {units.factor:g} per model unit",
+        *(f"{k}: {v}" for k, v in {**edges, **hits.summary()}.items()),
+        f"intersecting_patch_list: {pairs or '-'}",
+        f"clean: {not problems}",
+    ]
+
+
+def export_patches(
+    patches: np.ndarray, out: str | Path, units: CadUnits = CadUnits(), quad_alpha: float = 12.0, tri_alpha: float = 40.0
+) -> dict:
+    """All file exports of one patch set; returns a summary (counts, mesh checks, CAD units)."""
     out = Path(out)
     write_npy(out / "patches.npy", patches.astype(np.float32))
-    write_iges(out / "patches.igs", coons_to_bezier(patches))
+    nets = coons_to_bezier(patches)
+    write_iges(out / "patches.igs", nets, units)
+    sewn = write_step(out / "patches.stp", nets, units)
     qm = quad_mesh(patches, alpha=quad_alpha)
     write_obj(out / "quads.obj", qm.vertices, qm.faces, qm.patch_of_face)
     fine = quad_mesh(patches, alpha=tri_alpha)
     tris = fine.triangles()
-    write_obj(out / "mesh.obj", fine.vertices, tris)
-    save_png(out / "render.png", render_mesh(fine.vertices, tris, size=384))
+    edges = edge_report(tris)
+    hits = mesh_intersections(fine.vertices, tris, np.repeat(fine.patch_of_face, 2))
+    problems = mesh_problems(edges, hits, sewn.solid, sewn.free_edges)
+    write_obj(out / "mesh.obj", fine.vertices, tris, comments=_obj_header(edges, hits, units, problems))
+    colors = np.tile(np.asarray(DEFAULT_COLOR, np.float64), (len(tris), 1))
+    colors[hits.faces] = (0.9, 0.1, 0.1)
+    save_png(out / "render.png", render_mesh(fine.vertices, tris, size=384, face_colors=colors))
     return {
         "patches": int(len(patches)),
         "quads": int(len(qm.faces)),
         "triangles": int(len(tris)),
-        "mesh": edge_report(tris),
+        "mesh": {**edges, **hits.summary()},
+        "intersecting_patch_pairs": [list(p) for p in hits.patch_pairs],
+        "step": "solid" if sewn.solid else f"open shell, {sewn.free_edges} free edges",
+        "cad_units": units.describe(),
         "curve_counts": qm.counts.tolist(),
+        "clean": not problems,
+        "problems": problems,
     }
 
 
 @torch.no_grad()
-def predict(checkpoint: str | Path, sketches: list[str | Path], out: str | Path, parts: dict[str, bool] | None = None) -> dict:
+def predict(
+    checkpoint: str | Path,
+    sketches: list[str | Path],
+    out: str | Path,
+    parts: dict[str, bool] | None = None,
+    units: CadUnits = CadUnits(),
+) -> dict:
     model, template, ckpt = load_predictor(checkpoint)
     images = load_sketches(sketches, ckpt["settings"]["image_size"])
     params = model(images)[0]
@@ -92,4 +142,4 @@ def predict(checkpoint: str | Path, sketches: list[str | Path], out: str | Path,
     # a part switched off drops its patches and brings in its closing patches: still closed
     keep = template.active_patches(parts)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
-    return export_patches(patches, out)
+    return export_patches(patches, out, units)

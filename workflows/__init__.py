@@ -16,8 +16,12 @@ from workflows.tasks import (  # noqa: E402  (the environment must be set before
     SourceList,
 )
 
-if "luigi" in os.path.basename(sys.argv[0]):  # the `luigi` command, not an importing test or trainer
+# the `luigi` command (or `python -m luigi`), not an importing test or trainer
+if "luigi" in os.path.basename(sys.argv[0]) or sys.argv[0].endswith(os.path.join("luigi", "__main__.py")):
+    from workflows.console import Console
     from workflows.warm import forks_per_task, warm_stage_code
+
+    Console.install()  # progress line, luigi.log in the work folder, summary at exit
 
     if forks_per_task(sys.argv[1:]):
         warm_stage_code()

@@ -1,7 +1,10 @@
 """What each Luigi task does, as plain functions (no Luigi here), so they can be called and
 tested directly. Each batch step writes a small JSON listing its models' outcomes:
 
-``{"stage", "category", "batch", "models": [{"model_id", "status", "stage", "error"?}]}``
+``{"stage", "category", "batch", "models": [{"model_id", "work_id", "status", "stage", "error"?}]}``
+
+Steps take the category's model list (pipeline.listing): a batch is a slice of it, and models are
+handed to the stages under their work ids, which name their output folders.
 
 A model that failed upstream is carried forward with the stage where it failed, so the shard
 step sees every failure of the category with its reason.
@@ -9,7 +12,6 @@ step sees every failure of the category with its reason.
 
 from __future__ import annotations
 
-import itertools
 import os
 import shutil
 import socket
@@ -18,104 +20,95 @@ from pathlib import Path
 
 from pipeline.atomic import read_json, storage_error, write_json
 from pipeline.build_settings import BuildSettings
+from pipeline.config import settings_hash
 from pipeline.layout import ModelRef, Progress, model_dir
-from pipeline.manifest import category_fragment, read_fragment, write_fragment, write_manifest
-from pipeline.shards import ModelDirs, write_category_shards
+from pipeline.manifest import (FRAGMENT, build_manifest, category_fragment, content_checksum, read_fragment,
+                               read_manifest, write_fragment, write_manifest)
+from pipeline.shards import ModelDirs, file_sha256, list_shards, write_category_shards
 
 BATCHES = "_batches"
-LISTS = "_lists"
 RUNS = "_runs"
 
 
 # ---------------------------------------------------------------- paths
 
-def list_path(s: BuildSettings, category: str) -> Path:
-    """The category's model list for this limit (adding models makes a new list)."""
-    tag = f"n{s.limit}" if s.limit is not None else "all"
-    return s.stage_dir("source") / category / LISTS / f"{tag}.json"
+def batch_models(s: BuildSettings, lst: dict, batch: int) -> list[dict]:
+    return lst["models"][batch * s.batch_size:(batch + 1) * s.batch_size]
 
 
-def batch_path(s: BuildSettings, stage: str, category: str, batch: int) -> Path:
-    """A batch's outcome file; named by limit and batch size too, since both change which models
-    batch number ``batch`` holds."""
-    tag = f"n{s.limit}" if s.limit is not None else "all"
-    return s.stage_dir(stage) / category / BATCHES / f"{tag}-b{s.batch_size}-{batch:05d}.json"
-
-
-def read_list(s: BuildSettings, category: str) -> list[ModelRef]:
-    return [ModelRef(category, m["model_id"], Path(m["path"]), m["source"])
-            for m in read_json(list_path(s, category))["models"]]
-
-
-def expected_models(s: BuildSettings, category: str) -> int:
-    """How many models the category's list holds (or will hold once written), without generating
-    or opening any mesh: the written list if there is one, else the procedural count, else the
-    directory listing (names only)."""
-    if list_path(s, category).exists():
-        return len(read_list(s, category))
-    from pipeline.sources import DEFAULT_PROCEDURAL_COUNT, iter_models
-
-    if s.is_procedural:
-        return s.limit if s.limit is not None else DEFAULT_PROCEDURAL_COUNT
-    names = iter_models(s.source, category)
-    return sum(1 for _ in (names if s.limit is None else itertools.islice(names, s.limit)))
+def batch_path(s: BuildSettings, stage: str, lst: dict, batch: int) -> Path:
+    """A batch's outcome file, named by the work ids it holds: a batch whose models (or their
+    content) changed is a new batch, an unchanged one stays done whatever else was added."""
+    ids = [m["work_id"] for m in batch_models(s, lst, batch)]
+    return s.stage_dir(stage) / lst["category"] / BATCHES / f"{batch:05d}-{settings_hash({'ids': ids})}.json"
 
 
 def n_batches(n_models: int, batch_size: int) -> int:
     return -(-n_models // batch_size)
 
 
+def _ref(category: str, m: dict) -> ModelRef:
+    """The model as the stages see it: named by its work id (its output folder and seed key)."""
+    return ModelRef(category, m["work_id"], Path(m["path"]), m["source"])
+
+
 # ---------------------------------------------------------------- steps
 
 def write_source_list(s: BuildSettings, category: str) -> int:
-    """List (and for the procedural source, generate) the category's models; returns the count."""
+    """Generate the procedural source's models and store their list (file sources store theirs
+    while listing); returns the count."""
+    from pipeline.listing import current_listing, list_path, procedural_tag
     from pipeline.sources import list_models
 
+    if not s.is_procedural:
+        return len(current_listing(s, category)["models"])
     refs = list_models(s.source, category, s.limit, s.seed, Path(s.work_dir))
-    write_json(list_path(s, category), {
+    write_json(list_path(s, category, procedural_tag(s)), {
         "category": category,
         "models": [{"model_id": r.model_id, "path": str(r.path), "source": r.source} for r in refs],
     })
     return len(refs)
 
 
-def _outcome(model_id: str, stage: str, rec: dict | None) -> dict:
+def _outcome(m: dict, stage: str, rec: dict | None) -> dict:
+    out = {"model_id": m["model_id"], "work_id": m["work_id"], "stage": stage,
+           "status": "failed" if rec is None else rec.get("status", "failed")}
     if rec is None:
-        return {"model_id": model_id, "status": "failed", "stage": stage,
-                "error": {"path": model_id, "reason": "no record written"}}
-    out = {"model_id": model_id, "status": rec.get("status", "failed"), "stage": stage}
-    if out["status"] != "ok":
-        out["error"] = rec.get("error") or {"path": model_id, "reason": "unknown failure"}
+        out["error"] = {"path": m["path"], "reason": "no record written"}
+    elif out["status"] != "ok":
+        out["error"] = rec.get("error") or {"path": m["path"], "reason": "unknown failure"}
     return out
 
 
-def _write_batch(s: BuildSettings, stage: str, category: str, batch: int, outcomes: list[dict],
+def _write_batch(s: BuildSettings, stage: str, lst: dict, batch: int, outcomes: list[dict],
                  t0: float, **extra) -> dict:
     # wall seconds are kept in the work folder only (never in shards or manifest) for stage shares
-    doc = {"stage": stage, "category": category, "batch": batch, "models": outcomes,
+    doc = {"stage": stage, "category": lst["category"], "batch": batch, "models": outcomes,
            "seconds": round(time.perf_counter() - t0, 3), **extra}
-    write_json(batch_path(s, stage, category, batch), doc)
+    write_json(batch_path(s, stage, lst, batch), doc)
     return doc
 
 
-def _upstream(s: BuildSettings, stage: str, category: str, batch: int) -> tuple[list[str], list[dict]]:
-    """Model ids that passed ``stage`` in this batch, and the outcomes of those that did not."""
-    doc = read_json(batch_path(s, stage, category, batch))
-    ok = [m["model_id"] for m in doc["models"] if m["status"] == "ok"]
-    return ok, [m for m in doc["models"] if m["status"] != "ok"]
+def _upstream(s: BuildSettings, stage: str, lst: dict, batch: int) -> tuple[list[dict], list[dict]]:
+    """Models (list entries) that passed ``stage`` in this batch, and the outcomes of those that did not."""
+    doc = read_json(batch_path(s, stage, lst, batch))
+    passed = {m["work_id"] for m in doc["models"] if m["status"] == "ok"}
+    return ([m for m in batch_models(s, lst, batch) if m["work_id"] in passed],
+            [m for m in doc["models"] if m["status"] != "ok"])
 
 
-def prepare_step(s: BuildSettings, category: str, batch: int, progress: Progress = None) -> dict:
+def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
     t0 = time.perf_counter()
     from pipeline.prepare import prepare_batch
 
-    refs = read_list(s, category)[batch * s.batch_size:(batch + 1) * s.batch_size]
-    records = prepare_batch(refs, s.stage_dir("prepare"), s.prepare_settings(), progress)
-    return _write_batch(s, "prepare", category, batch,
-                        [_outcome(r.model_id, "prepare", rec) for r, rec in zip(refs, records)], t0)
+    models = batch_models(s, lst, batch)
+    records = prepare_batch([_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
+                            s.prepare_settings(), progress)
+    return _write_batch(s, "prepare", lst, batch,
+                        [_outcome(m, "prepare", rec) for m, rec in zip(models, records)], t0)
 
 
-def render_step(s: BuildSettings, category: str, batch: int, progress: Progress = None,
+def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None,
                 crash_retries: int = 1) -> dict:
     """Render the batch's prepared models in one Blender process. If Blender crashes or hangs,
     the batch is retried ``crash_retries`` times (finished models keep their records, so a retry
@@ -123,9 +116,12 @@ def render_step(s: BuildSettings, category: str, batch: int, progress: Progress 
     t0 = time.perf_counter()
     from render.batch import RenderBatchError, render_batch
 
-    ok, failed = _upstream(s, "prepare", category, batch)
+    category = lst["category"]
+    ok, failed = _upstream(s, "prepare", lst, batch)
     prep = s.stage_dir("prepare")
-    items = [(mid, model_dir(prep, category, mid) / "mesh.ply") for mid in ok]
+    from pipeline.prepare import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
+
+    items = [(m["work_id"], model_dir(prep, category, m["work_id"]) / LINE_MESH_FILE) for m in ok]
     records: list[dict] = []
     crashes: list[str] = []
     for attempt in range(crash_retries + 1 if items else 0):
@@ -137,45 +133,54 @@ def render_step(s: BuildSettings, category: str, batch: int, progress: Progress 
             crashes.append(str(exc))
             if progress is not None:
                 progress(0, len(items), f"render {category} batch {batch}: retry {attempt + 1}/{crash_retries} after: {exc}"[:300])
-    outcomes = failed + [_outcome(mid, "render", rec) for (mid, _), rec in zip(items, records)]
-    return _write_batch(s, "render", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
+    outcomes = failed + [_outcome(m, "render", rec) for m, rec in zip(ok, records)]
+    return _write_batch(s, "render", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
                         attempts=len(crashes) + bool(records), crashes=crashes)
 
 
-def augment_step(s: BuildSettings, category: str, batch: int, progress: Progress = None) -> dict:
+def augment_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
     t0 = time.perf_counter()
     from augment.batch import augment_batch
 
-    ok, failed = _upstream(s, "render", category, batch)
+    category = lst["category"]
+    ok, failed = _upstream(s, "render", lst, batch)
     rend = s.stage_dir("render")
-    items = [(mid, model_dir(rend, category, mid)) for mid in ok]
+    items = [(m["work_id"], model_dir(rend, category, m["work_id"])) for m in ok]
     records = augment_batch(category, items, s.stage_dir("augment"), s.augment_settings(), s.seed, progress) if items else []
-    outcomes = failed + [_outcome(mid, "augment", rec) for (mid, _), rec in zip(items, records)]
-    return _write_batch(s, "augment", category, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0)
+    outcomes = failed + [_outcome(m, "augment", rec) for m, rec in zip(ok, records)]
+    return _write_batch(s, "augment", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0)
 
 
-def shards_step(s: BuildSettings, category: str, progress: Progress = None) -> dict:
+def listing_field(s: BuildSettings, lst: dict) -> str | None:
+    """What the category fragment records of the source list: its key for file sources (so a
+    changed folder makes the category stale); nothing for the procedural source, fixed by seed."""
+    return None if s.is_procedural else lst["key"]
+
+
+def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
     """Write the category's shards and its manifest fragment from the augment batch results."""
     t0 = time.perf_counter()
-    n = len(read_list(s, category))
-    ok: list[str] = []
+    category = lst["category"]
+    n = len(lst["models"])
+    ok: list[dict] = []
     failed: list[dict] = []
     for b in range(n_batches(n, s.batch_size)):
-        good, bad = _upstream(s, "augment", category, b)
+        good, bad = _upstream(s, "augment", lst, b)
         ok += good
         failed += [{"model_id": m["model_id"], "stage": m["stage"],
                     "path": s.portable_path(m["error"].get("path")), "reason": m["error"].get("reason")}
                    for m in bad]
-    dirs = [ModelDirs(mid, model_dir(s.stage_dir("prepare"), category, mid),
-                      model_dir(s.stage_dir("render"), category, mid),
-                      model_dir(s.stage_dir("augment"), category, mid)) for mid in ok]
+    dirs = [ModelDirs(m["model_id"], model_dir(s.stage_dir("prepare"), category, m["work_id"]),
+                      model_dir(s.stage_dir("render"), category, m["work_id"]),
+                      model_dir(s.stage_dir("augment"), category, m["work_id"])) for m in ok]
     if progress is not None:
         progress(0, 1, f"shards {category}: packing {len(dirs)} models")
     holder: dict = {}
 
     def fragment(result) -> None:
         holder["fragment"] = category_fragment(category, result, s.manifest_settings(),
-                                               s.category_settings_hash(), n, failed)
+                                               s.category_settings_hash(), n, failed,
+                                               listing=listing_field(s, lst))
         write_fragment(Path(s.dataset_dir) / category, holder["fragment"])
 
     cat_dir = Path(s.dataset_dir) / category
@@ -215,35 +220,82 @@ def read_runs(work_dir: Path) -> dict[str, list[dict]]:
     return out
 
 
-def stage_seconds(s: BuildSettings, categories: list[str]) -> dict[str, float]:
-    """Wall seconds spent per stage by the batch tasks of these categories (from _batches/)."""
+def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
+    """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
     out = {}
     for stage in ("prepare", "render", "augment"):
-        out[stage] = sum(read_json(p).get("seconds", 0.0) for c in categories
-                         for p in (s.stage_dir(stage) / c / BATCHES).glob("*.json"))
-    out["shards"] = sum(read_json(p)["seconds"] for c in categories
-                        for p in [s.stage_dir("shards") / c / "_timing.json"] if p.exists())
+        out[stage] = sum(read_json(p).get("seconds", 0.0) for lst in listings
+                         for b in range(n_batches(len(lst["models"]), s.batch_size))
+                         for p in [batch_path(s, stage, lst, b)] if p.exists())
+    out["shards"] = sum(read_json(p)["seconds"] for lst in listings
+                        for p in [s.stage_dir("shards") / lst["category"] / "_timing.json"] if p.exists())
     return out
 
 
-def category_is_current(s: BuildSettings, category: str) -> bool:
-    """Does the dataset folder hold this category built with exactly these settings?"""
-    frag = read_fragment(Path(s.dataset_dir) / category)
-    if frag is None or frag.get("settings_hash") != s.category_settings_hash():
-        return False
-    return all((Path(s.dataset_dir) / category / sh["name"]).exists()
-               for split in frag["splits"].values() for sh in split["shards"])
+def category_problems(s: BuildSettings, lst: dict, checksums: bool = False) -> list[str]:
+    """Why the dataset folder's copy of this category differs from what this build writes
+    ([] = current): settings or source list changed, category.json altered, a listed shard
+    missing or of another size, an unlisted shard file present. A shard's sha256 is checked when
+    ``checksums`` is set, or when the shard is newer than category.json (edited after the build)."""
+    cat_dir = Path(s.dataset_dir) / lst["category"]
+    try:
+        frag = read_fragment(cat_dir)
+    except (OSError, ValueError) as exc:
+        return [f"{FRAGMENT} unreadable: {exc}"]
+    if frag is None:
+        return [f"no {FRAGMENT}"]
+    if frag.get("checksum") != content_checksum(frag):
+        return [f"{FRAGMENT} altered (checksum does not match its content)"]
+    if frag.get("settings_hash") != s.category_settings_hash():
+        return ["built with other settings"]
+    if frag.get("listing") != listing_field(s, lst):
+        return ["source folder changed"]
+    frag_mtime = (cat_dir / FRAGMENT).stat().st_mtime_ns
+    problems = []
+    listed = set()
+    for split in frag["splits"].values():
+        for sh in split["shards"]:
+            listed.add(sh["name"])
+            path = cat_dir / sh["name"]
+            try:
+                st = path.stat()
+            except OSError:
+                problems.append(f"{sh['name']} missing")
+                continue
+            if st.st_size != sh["bytes"]:
+                problems.append(f"{sh['name']} has {st.st_size} bytes, category.json says {sh['bytes']}")
+            elif (checksums or st.st_mtime_ns > frag_mtime) and file_sha256(path) != sh["sha256"]:
+                problems.append(f"{sh['name']} sha256 differs from category.json")
+    problems += [f"{p.name} not listed in {FRAGMENT}" for p in list_shards(cat_dir) if p.name not in listed]
+    return problems
 
 
-def manifest_is_current(s: BuildSettings, categories: list[str]) -> bool:
-    """Is manifest.json present and listing these categories exactly as their fragments do?"""
-    path = Path(s.dataset_dir) / "manifest.json"
-    if not path.exists():
+def manifest_is_current(s: BuildSettings, listings: list[dict], checksums: bool = False) -> bool:
+    """Are these categories current and manifest.json exactly the merge of the fragments present?"""
+    if any(category_problems(s, lst, checksums) for lst in listings):
         return False
-    manifest = read_json(path)
-    return all(category_is_current(s, c)
-               and manifest["categories"].get(c) == read_fragment(Path(s.dataset_dir) / c)
-               for c in categories)
+    try:
+        return read_manifest(Path(s.dataset_dir)) == build_manifest(Path(s.dataset_dir))
+    except (OSError, ValueError):
+        return False
+
+
+class TooManyFailures(RuntimeError):
+    """More than --max-failed-fraction of a category's models failed (the dataset is written)."""
+
+
+def too_many_failures(s: BuildSettings, categories: list[str], fraction: float) -> list[str]:
+    """One line per category whose failed share exceeds ``fraction`` ([] = none)."""
+    out = []
+    for c in categories:
+        frag = read_fragment(Path(s.dataset_dir) / c)
+        if frag is None or not frag["models_requested"]:
+            continue
+        share = frag["models_failed"] / frag["models_requested"]
+        if share > fraction:
+            out.append(f"{c}: {frag['models_failed']} of {frag['models_requested']} models failed "
+                       f"({100 * share:.0f}%) > --max-failed-fraction {fraction:g}")
+    return out
 
 
 def manifest_step(s: BuildSettings) -> dict:

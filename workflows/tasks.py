@@ -1,6 +1,7 @@
 """Luigi tasks. Thin: parameters, dependencies, targets; each run() is one call into
 workflows.steps. Order: SourceList → PrepareBatch → RenderBatch → AugmentBatch (per batch of
-models) → CategoryShards → BuildCategory → BuildDataset (manifest.json)."""
+models) → CategoryShards → BuildCategory or BuildDataset (manifest.json). Parameters are
+checked when a task is made (workflows.validate)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from typing import Iterator
 import luigi
 
 from pipeline.build_settings import BuildSettings
-from workflows import steps
+from pipeline.listing import current_listing, list_path, read_listing
+from workflows import steps, validate
 
 
 class _BuildTask(luigi.Task):
@@ -33,7 +35,13 @@ class _BuildTask(luigi.Task):
     work_dir = luigi.Parameter(default="data/work")
     dataset_dir = luigi.Parameter(default="data/dataset")
 
-    @property
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # Every parameter is checked when the task is made, before anything is scheduled or run
+        # (the `luigi` command makes the root task first); a bad one stops with one line.
+        validate.check_settings(self.build)
+
+    @functools.cached_property
     def build(self) -> BuildSettings:
         return BuildSettings(
             source=self.source, models_per_category=self.models_per_category, views=self.views,
@@ -55,34 +63,41 @@ class _BuildTask(luigi.Task):
         self.set_progress_percentage(int(100 * done / max(total, 1)))
 
 
-class SourceList(_BuildTask):
-    category = luigi.Parameter()
+class _ListedTask(_BuildTask):
+    """A task of one category's model list, named by the list's key (see pipeline.listing)."""
 
+    category = luigi.Parameter()
+    listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")
+
+    @property
+    def lst(self) -> dict:
+        return read_listing(self.build, self.category, self.listing)
+
+
+class SourceList(_ListedTask):
     def output(self):
-        return luigi.LocalTarget(steps.list_path(self.build, self.category))
+        return luigi.LocalTarget(list_path(self.build, self.category, self.listing))
 
     def run(self):
         with self.recorded():
             steps.write_source_list(self.build, self.category)
 
 
-class PrepareBatch(_BuildTask):
-    category = luigi.Parameter()
+class PrepareBatch(_ListedTask):
     batch = luigi.IntParameter()
 
     def requires(self):
         return self.clone(SourceList)
 
     def output(self):
-        return luigi.LocalTarget(steps.batch_path(self.build, "prepare", self.category, self.batch))
+        return luigi.LocalTarget(steps.batch_path(self.build, "prepare", self.lst, self.batch))
 
     def run(self):
         with self.recorded():
-            steps.prepare_step(self.build, self.category, self.batch, self.progress)
+            steps.prepare_step(self.build, self.lst, self.batch, self.progress)
 
 
-class RenderBatch(_BuildTask):
-    category = luigi.Parameter()
+class RenderBatch(_ListedTask):
     batch = luigi.IntParameter()
     resources = {"blender": 1}
     crash_retries = luigi.IntParameter(default=1, significant=False,
@@ -92,74 +107,93 @@ class RenderBatch(_BuildTask):
         return self.clone(PrepareBatch)
 
     def output(self):
-        return luigi.LocalTarget(steps.batch_path(self.build, "render", self.category, self.batch))
+        return luigi.LocalTarget(steps.batch_path(self.build, "render", self.lst, self.batch))
 
     def run(self):
         with self.recorded():
-            steps.render_step(self.build, self.category, self.batch, self.progress, self.crash_retries)
+            steps.render_step(self.build, self.lst, self.batch, self.progress, self.crash_retries)
 
 
-class AugmentBatch(_BuildTask):
-    category = luigi.Parameter()
+class AugmentBatch(_ListedTask):
     batch = luigi.IntParameter()
 
     def requires(self):
         return self.clone(RenderBatch)
 
     def output(self):
-        return luigi.LocalTarget(steps.batch_path(self.build, "augment", self.category, self.batch))
+        return luigi.LocalTarget(steps.batch_path(self.build, "augment", self.lst, self.batch))
 
     def run(self):
         with self.recorded():
-            steps.augment_step(self.build, self.category, self.batch, self.progress)
+            steps.augment_step(self.build, self.lst, self.batch, self.progress)
 
 
-class CategoryShards(_BuildTask):
-    """The category's shards + category.json in the dataset folder, current for these settings."""
+class CategoryShards(_ListedTask):
+    """The category's shards + category.json in the dataset folder, current for these settings
+    and this model list; damaged or missing shards make it incomplete, so a re-run repairs them."""
 
-    category = luigi.Parameter()
+    verify = luigi.BoolParameter(default=False, significant=False,
+                                 description="check every shard's sha256, not only its size")
 
     def requires(self):
-        # Batches are static dependencies, counted without opening a mesh: with a central
-        # scheduler every worker then knows them and can take any (dynamic ones would be runnable
-        # only by the worker that yielded them).
-        return [self.clone(SourceList)] + self.batch_tasks(self.expected_models)
-
-    @functools.cached_property
-    def expected_models(self) -> int:
-        # Luigi calls requires() several times per task; count (list a source folder) once
-        return steps.expected_models(self.build, self.category)
+        # Batches are static dependencies: with a central scheduler every worker then knows them
+        # and can take any (dynamic ones would be runnable only by the worker that yielded them).
+        n = steps.n_batches(len(self.lst["models"]), self.batch_size)
+        return [self.clone(SourceList)] + [self.clone(AugmentBatch, batch=b) for b in range(n)]
 
     def complete(self):
-        return steps.category_is_current(self.build, self.category)
-
-    def batch_tasks(self, n_models: int) -> list[AugmentBatch]:
-        """The last batch task of each batch of a category of ``n_models`` models."""
-        return [self.clone(AugmentBatch, batch=b) for b in range(steps.n_batches(n_models, self.batch_size))]
+        return not steps.category_problems(self.build, self.lst, self.verify)
 
     def run(self):
-        # The listed count normally equals the expected one; if the source folder changed in
-        # between, the missing batches are added here as dynamic dependencies.
-        yield self.batch_tasks(len(steps.read_list(self.build, self.category)))
-        steps.shards_step(self.build, self.category, self.progress)
+        with self.recorded():
+            steps.shards_step(self.build, self.lst, self.progress)
 
 
-class BuildCategory(_BuildTask):
+class _BuildRoot(_BuildTask):
+    """What BuildCategory and BuildDataset share: the source lists, re-read on every run, and
+    the failure threshold."""
+
+    verify = luigi.BoolParameter(default=False, significant=False,
+                                 description="check every shard's sha256 (default: sizes, and sha256 of shards edited after the build)")
+    max_failed_fraction = luigi.FloatParameter(default=1.0, significant=False,
+                                               description="fail when more than this fraction of a category's models failed")
+
+    def category_list(self) -> list[str]:
+        raise NotImplementedError
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        validate.check_categories(self.build, self.category_list())
+        validate.check_fraction(self.max_failed_fraction)
+
+    def listings(self) -> list[dict]:
+        """Each category's model list as the source is now (re-read on every call)."""
+        return [current_listing(self.build, c) for c in self.category_list()]
+
+    def requires(self):
+        return [self.clone(CategoryShards, category=lst["category"], listing=lst["key"]) for lst in self.listings()]
+
+    def complete(self):
+        return (steps.manifest_is_current(self.build, self.listings(), self.verify)
+                and not steps.too_many_failures(self.build, self.category_list(), self.max_failed_fraction))
+
+    def run(self):
+        steps.manifest_step(self.build)
+        over = steps.too_many_failures(self.build, self.category_list(), self.max_failed_fraction)
+        if over:
+            raise steps.TooManyFailures("; ".join(over))
+
+
+class BuildCategory(_BuildRoot):
     """One category rebuilt as needed, then manifest.json merged from every category present."""
 
     category = luigi.Parameter()
 
-    def requires(self):
-        return self.clone(CategoryShards)
-
-    def complete(self):
-        return steps.manifest_is_current(self.build, [self.category])
-
-    def run(self):
-        steps.manifest_step(self.build)
+    def category_list(self) -> list[str]:
+        return [self.category]
 
 
-class BuildDataset(_BuildTask):
+class BuildDataset(_BuildRoot):
     """Every category of the source (or --categories a,b,c), and manifest.json."""
 
     categories = luigi.Parameter(default="", description="comma-separated categories (default: all of the source)")
@@ -170,12 +204,3 @@ class BuildDataset(_BuildTask):
         from pipeline.sources import list_categories
 
         return list_categories(self.source)
-
-    def requires(self):
-        return [self.clone(BuildCategory, category=c) for c in self.category_list()]
-
-    def complete(self):
-        return steps.manifest_is_current(self.build, self.category_list())
-
-    def run(self):
-        steps.manifest_step(self.build)

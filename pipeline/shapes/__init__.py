@@ -2,7 +2,9 @@
 
 Frame as ShapeNet: y up, bilateral symmetry across x = 0, front along -z. Parts are separate,
 overlapping closed meshes (not unioned), like scraped CAD models; a fraction of models carry
-deliberate defects (see :mod:`pipeline.shapes.defects`).
+deliberate defects (see :mod:`pipeline.shapes.defects`). A fraction of cars, airplanes and
+bottles have detached parts, as real models do: wheels clear of the body, engines hanging under
+their pylons with a gap, a cap floating above the neck; they stay separate bodies after repair.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from pipeline.shapes.model import Cuboid, Part, ProceduralModel, cuboid_of
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
 
-_BUILDERS: dict[str, Callable[[np.random.Generator], list[Part]]] = {
+# Builders take (rng, detached); those without a detached variant ignore the flag.
+_BUILDERS: dict[str, Callable[[np.random.Generator, bool], list[Part]]] = {
     "airplane": airplane.build,
     "bathtub": bathtub.build,
     "bottle": bottle.build,
@@ -30,16 +33,25 @@ _BUILDERS: dict[str, Callable[[np.random.Generator], list[Part]]] = {
 }
 
 
-def generate(category: str, index: int, seed: int = 0, defect_fraction: float = 0.25) -> ProceduralModel:
-    """Model ``index`` of ``category``: same (seed, category, index) gives identical arrays."""
+DETACHABLE = ("airplane", "bottle", "car")
+
+
+def generate(category: str, index: int, seed: int = 0, defect_fraction: float = 0.25,
+             detached_fraction: float = 0.3) -> ProceduralModel:
+    """Model ``index`` of ``category``: same (seed, category, index) gives identical arrays.
+
+    ``detached_fraction``: probability that a model of a DETACHABLE category has detached parts.
+    """
     if category not in _BUILDERS:
         raise ValueError(f"unknown category {category!r}; expected one of {CATEGORIES}")
     shape_rng = rng_for(seed, "shapes", category, index)
-    parts = _BUILDERS[category](shape_rng)
+    # Its own stream, drawn after the shape's, so the attached variant of a shape never changes.
+    detached = category in DETACHABLE and rng_for(seed, "shapes-detached", category, index).random() < detached_fraction
+    parts = _BUILDERS[category](shape_rng, detached)
     # A separate stream for defects, so changing defect_fraction never changes the clean shape.
     defects = apply_defects(parts, rng_for(seed, "shapes-defects", category, index), defect_fraction)
     cuboids = [cuboid_of(p) for p in parts]
-    return ProceduralModel(category, int(index), f"{int(index):05d}", int(seed), parts, cuboids, defects)
+    return ProceduralModel(category, int(index), f"{int(index):05d}", int(seed), parts, cuboids, defects, detached)
 
 
-__all__ = ["CATEGORIES", "Cuboid", "Part", "ProceduralModel", "generate"]
+__all__ = ["CATEGORIES", "DETACHABLE", "Cuboid", "Part", "ProceduralModel", "generate"]

@@ -1,4 +1,5 @@
-"""Airplanes: lofted fuselage (nose at -z), swept tapered wings, tailplane, fin, optional engines."""
+"""Airplanes: lofted fuselage (nose at -z), swept tapered wings, tailplane, fin, optional engines
+(detached: on pylons, a gap between pylon and nacelle)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import numpy as np
 
 from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part, mirrored_pair
+
+GAP = 0.035  # detached engines: clearance between pylon and nacelle, in fuselage lengths
 
 
 def _fuselage(length: float, radius: float, nose: float, tail: float, upsweep: float, k: int = 24, n: int = 28) -> pr.Mesh:
@@ -55,7 +58,7 @@ def _nacelle(center: np.ndarray, length: float, radius: float, k: int = 20) -> p
     return pr.lathe(list(zip(prof, zs)), k=k, center=tuple(center), axis="z")
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     L = rng.uniform(1.3, 1.7)
     R = L * rng.uniform(0.045, 0.075)
     parts = [make_part("fuselage", _fuselage(L, R, rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.35), rng.uniform(0.2, 0.8)))]
@@ -89,13 +92,24 @@ def build(rng: np.random.Generator) -> list[Part]:
 
     # Engines under the wings: 0, 2 or 4.
     n_eng = int(rng.choice([0, 2, 4], p=[0.25, 0.55, 0.2]))
+    if detached:
+        n_eng = max(n_eng, 2)
     eng_r = R * rng.uniform(0.35, 0.55)
     eng_len = root_chord * rng.uniform(0.6, 0.9)
     stations = {0: [], 2: [rng.uniform(0.28, 0.4)], 4: [rng.uniform(0.22, 0.3), rng.uniform(0.5, 0.62)]}[n_eng]
     for j, f in enumerate(stations):
         x = span * f
         le_z = wing_z + x * np.tan(np.radians(sweep))
-        y = wing_y + x * np.tan(np.radians(dihedral)) - eng_r * 1.05
+        y_wing = wing_y + x * np.tan(np.radians(dihedral))
+        if detached:
+            # pylon hanging from the wing, the nacelle a gap below it (separately modelled parts)
+            drop = eng_r * 0.8
+            pylon = pr.superquadric((eng_r * 0.12, drop / 2 + eng_r * 0.1, eng_len * 0.3),
+                                    (x, y_wing - drop / 2, le_z + eng_len * 0.05), 6.0, k=12, n=6)
+            parts += mirrored_pair(f"pylon{j}", pylon)
+            y = y_wing - drop - GAP * L - eng_r
+        else:
+            y = y_wing - eng_r * 1.05
         center = np.array([x, y, le_z - eng_len * 0.2])
         parts += mirrored_pair(f"engine{j}", _nacelle(center, eng_len, eng_r))
     return parts

@@ -11,7 +11,7 @@ from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part, mirrored_pair
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     Lx = rng.uniform(0.75, 1.0)  # half length
     Wz = Lx * rng.uniform(0.38, 0.55)  # half width
     H = rng.uniform(0.35, 0.55)

@@ -1,4 +1,5 @@
-"""Bottles: body, shoulder, neck and optional cap, each a separate closed solid of revolution."""
+"""Bottles: body, shoulder, neck and optional cap (detached: floating above the neck), each a
+separate closed solid of revolution."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ import numpy as np
 from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part
 
+GAP = 0.03  # detached cap: clearance above the neck, in bottle heights
 
-def build(rng: np.random.Generator) -> list[Part]:
+
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     H = rng.uniform(1.4, 2.0)
     R = H * rng.uniform(0.12, 0.22)
     body_h = H * rng.uniform(0.4, 0.65)
@@ -46,8 +49,10 @@ def build(rng: np.random.Generator) -> list[Part]:
     nprof += [(neck_r * 1.15, ny + neck_h * 0.88), (neck_r * 1.15, H)] if lip else [(neck_r, H)]
     parts.append(make_part("neck", pr.lathe(nprof, k=32)))
 
-    if rng.random() < 0.6:
+    if rng.random() < 0.6 or detached:
         cap_h = H * rng.uniform(0.05, 0.1)
         cap_r = neck_r * rng.uniform(1.15, 1.35)
-        parts.append(make_part("cap", pr.cylinder(cap_r, cap_h, k=32, center=(0, H - cap_h * 0.35, 0), axis="y")))
+        # attached: over the neck's top; detached: floating a gap above it (a separate body)
+        cap_y = H + GAP * H + cap_h / 2 if detached else H - cap_h * 0.35
+        parts.append(make_part("cap", pr.cylinder(cap_r, cap_h, k=32, center=(0, cap_y, 0), axis="y")))
     return parts

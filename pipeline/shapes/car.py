@@ -1,4 +1,4 @@
-"""Cars: lofted body (front at -z), cabin/greenhouse, four wheels, optional spoiler."""
+"""Cars: lofted body (front at -z), cabin/greenhouse, four wheels (detached: clear of the body), optional spoiler."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import numpy as np
 
 from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part, mirrored_pair
+
+GAP = 0.045  # detached wheels: clearance to the body, in car lengths
 
 
 def _body(length: float, width: float, bottom: float, height: float, hood_drop: float, tail_drop: float,
@@ -37,7 +39,7 @@ def _cabin(z0: float, z1: float, base_y: float, height: float, width: float, rak
     return pr.loft(rings)
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     L = rng.uniform(1.6, 2.0)
     W = L * rng.uniform(0.38, 0.46)
     kind = rng.choice(["sedan", "hatch", "suv", "sports"])
@@ -58,7 +60,9 @@ def build(rng: np.random.Generator) -> list[Part]:
 
     wheelbase = L * rng.uniform(0.56, 0.66)
     tire_w = W * rng.uniform(0.14, 0.2)
-    x = W / 2 - tire_w * 0.45
+    # Attached: tyres half inside the body's flanks. Detached: clear of the body by a gap (as
+    # separately modelled wheels are), wide enough to stay a separate body through the repair.
+    x = W / 2 + GAP * L + tire_w / 2 if detached else W / 2 - tire_w * 0.45
     for name, z in (("wheel_front", -wheelbase / 2 - L * 0.02), ("wheel_rear", wheelbase / 2)):
         parts += mirrored_pair(name, pr.cylinder(wheel_r, tire_w, k=28, center=(x, wheel_r, z), axis="x"))
 

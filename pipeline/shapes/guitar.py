@@ -23,7 +23,7 @@ def _two_lobe_outline(lower_r: float, upper_r: float, gap: float, waist: float, 
     return d * rad[:, None]
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     lower = rng.uniform(0.3, 0.42)
     upper = lower * rng.uniform(0.65, 0.9)
     gap = lower * rng.uniform(0.9, 1.3)

@@ -9,7 +9,7 @@ from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     rifle = rng.random() < 0.65
     scale = rng.uniform(0.8, 1.0) if rifle else rng.uniform(0.45, 0.6)
     rec_len = scale * (rng.uniform(0.45, 0.7) if rifle else rng.uniform(0.7, 0.9))

@@ -26,7 +26,7 @@ def _blade(length: float, height: float, thick: float, spine_drop: float, belly:
     return pr.loft(rings)
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     blade_len = rng.uniform(0.6, 1.1)
     blade_h = blade_len * rng.uniform(0.12, 0.25)
     blade = _blade(blade_len, blade_h, rng.uniform(0.015, 0.03), rng.uniform(0.3, 0.9), rng.uniform(1.5, 3.5))

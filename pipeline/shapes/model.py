@@ -38,6 +38,7 @@ class ProceduralModel:
     parts: list[Part]
     cuboids: list[Cuboid]
     defects: list[str]
+    detached: bool = False  # some parts deliberately clear of the others (separate bodies)
 
     @property
     def n_faces(self) -> int:
@@ -61,6 +62,7 @@ class ProceduralModel:
             "parts": [{"label": p.label, "n_faces": int(len(p.faces))} for p in self.parts],
             "cuboids": [{"label": c.label, "lo": _round(c.lo), "hi": _round(c.hi)} for c in self.cuboids],
             "defects": list(self.defects),
+            "detached": bool(self.detached),
         }
 
     def obj_text(self) -> str:

@@ -8,7 +8,7 @@ from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part
 
 
-def build(rng: np.random.Generator) -> list[Part]:
+def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     H = rng.uniform(0.75, 1.1)
     R_top = rng.uniform(0.3, 0.45)
     R_bot = R_top * rng.uniform(0.75, 1.15)

@@ -79,9 +79,15 @@ def _junctions(curves: np.ndarray, tol: float) -> dict[int, list[tuple[int, floa
     coarse = np.linspace(0, 1, 129)
     checks = np.array([0.25, 0.5, 0.75])
     contained: dict[int, list[tuple[int, float, float]]] = {}
+    ends = curves[:, [0, 3]]  # (C, 2, 3)
     for a, parent in enumerate(curves):
         pts = bezier_points(parent, coarse)
-        for b, child in enumerate(curves):
+        # the Newton projection is the slow part: run it only for curves whose two ends both come
+        # within a sample spacing of this one (a point on the curve is that close to a sample)
+        reach = tol + np.linalg.norm(np.diff(pts, axis=0), axis=-1).max()
+        near = np.linalg.norm(ends[:, :, None] - pts[None, None], axis=-1).min(-1).max(-1) <= reach
+        for b in np.nonzero(near)[0]:
+            child = curves[b]
             if a == b:
                 continue
             u0, d0 = _project(parent, child[0], coarse, pts)

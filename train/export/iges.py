@@ -4,7 +4,10 @@ Each patch is written exactly: degree 3 x 3, 4 x 4 control points, all weights 1
 0,0,0,0,1,1,1,1 in both directions (a Bézier patch is a single-span B-spline). The file has the
 fixed-format sections Start (S), Global (G), Directory Entry (D, two lines per entity),
 Parameter Data (P) and Terminate (T), each record 80 columns with the section letter in column 73
-and the sequence number in 74-80. The reader parses that structure back (for round-trip checks
+and the sequence number in 74-80. Coordinates are model coordinates × ``CadUnits.factor``, and the
+Global section declares the matching unit (flag + name), so CAD programs open the file at the
+chosen size. The surfaces stand alone (no shared edges): ``patches.stp`` carries the sewn solid.
+The reader parses that structure back (for round-trip checks
 and for loading exported files) without any CAD library.
 """
 
@@ -17,6 +20,7 @@ import numpy as np
 from pipeline.atomic import write_bytes
 from pipeline.errors import ModelError
 from train.export.bicubic import bernstein3
+from train.export.units import CadUnits
 
 _KNOTS = (0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)
 # A fixed timestamp keeps the file byte-identical across runs (the standard requires one).
@@ -60,14 +64,16 @@ def entity128_params(net: np.ndarray) -> list[str]:
     return params
 
 
-def iges_text(nets: np.ndarray, name: str = "patches.igs") -> str:
-    nets = np.asarray(nets, dtype=np.float64)
+def iges_text(nets: np.ndarray, name: str = "patches.igs", units: CadUnits = CadUnits()) -> str:
+    """IGES text of model-frame nets ``(P, 4, 4, 3)``, written × ``units.factor`` in ``units``."""
+    nets = np.asarray(nets, dtype=np.float64) * units.factor
+    flag, unit_name = units.iges
     extent = float(np.abs(nets).max()) if nets.size else 1.0
     start = ["sketch2patch: Coons patches as exact bicubic NURBS (entity 128)"]
     glob = [
         "1H,", "1H;", _hollerith("sketch2patch"), _hollerith(name), _hollerith("sketch2patch"),
-        _hollerith("0.1.0"), "32", "38", "6", "308", "15", _hollerith("sketch2patch"), "1.0", "6",
-        _hollerith("M"), "1", "0.001", _hollerith(_DATE), "1.0D-9", _real(extent), "",
+        _hollerith("0.1.0"), "32", "38", "6", "308", "15", _hollerith("sketch2patch"), "1.0", str(flag),
+        _hollerith(unit_name), "1", _real(1e-3 * units.factor), _hollerith(_DATE), _real(1e-9 * units.factor), _real(extent), "",
         "", "11", "0", _hollerith(_DATE),
     ]  # fmt: skip
     d_lines: list[str] = []
@@ -90,9 +96,9 @@ def iges_text(nets: np.ndarray, name: str = "patches.igs") -> str:
     return "\n".join(out) + "\n"
 
 
-def write_iges(path: str | Path, nets: np.ndarray) -> None:
-    """Write bicubic nets (P, 4, 4, 3) as an IGES file (atomically)."""
-    write_bytes(path, iges_text(nets, Path(path).name).encode("ascii"))
+def write_iges(path: str | Path, nets: np.ndarray, units: CadUnits = CadUnits()) -> None:
+    """Write model-frame bicubic nets (P, 4, 4, 3) as an IGES file in ``units`` (atomically)."""
+    write_bytes(path, iges_text(nets, Path(path).name, units).encode("ascii"))
 
 
 def _float(tok: str) -> float:

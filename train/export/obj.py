@@ -9,9 +9,13 @@ import numpy as np
 from pipeline.atomic import write_bytes
 
 
-def obj_text(vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None) -> str:
-    """OBJ text; ``groups`` (per face) starts a new ``g patch_<k>`` whenever it changes."""
-    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(vertices, dtype=np.float64)]
+def obj_text(
+    vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None, comments: list[str] | None = None
+) -> str:
+    """OBJ text; ``groups`` (per face) starts a new ``g patch_<k>`` whenever it changes;
+    ``comments`` become ``#`` lines at the top (metadata that OBJ readers skip)."""
+    lines = [f"# {c}" for c in comments or []]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(vertices, dtype=np.float64)]
     current = None
     for k, face in enumerate(np.asarray(faces)):
         if groups is not None and groups[k] != current:
@@ -21,8 +25,10 @@ def obj_text(vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None 
     return "\n".join(lines) + "\n"
 
 
-def write_obj(path: str | Path, vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None) -> None:
-    write_bytes(path, obj_text(vertices, faces, groups).encode())
+def write_obj(
+    path: str | Path, vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None, comments: list[str] | None = None
+) -> None:
+    write_bytes(path, obj_text(vertices, faces, groups, comments).encode())
 
 
 def edge_report(faces: np.ndarray) -> dict:

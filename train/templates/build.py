@@ -80,7 +80,8 @@ def category_median(category: str, settings: BuildSettings = BuildSettings(), pr
     clouds, ids, label_sets, boxes_of = [], [], [], {}
     failures: dict[str, str] = {}
     for index in range(settings.n_models):
-        model = generate(category, index, seed=settings.seed, defect_fraction=0.0)
+        # attached parts only: templates stay those of the typical (one-body) shape
+        model = generate(category, index, seed=settings.seed, defect_fraction=0.0, detached_fraction=0.0)
         try:
             v, f = model.merged()
             center, scale = unit_sphere_transform(v)

@@ -1,0 +1,79 @@
+"""Checks of a build's parameters, run when a task is made, before anything is scheduled.
+
+Each problem raises BuildParameterError with one line naming the parameter, what is wrong and,
+for an unknown category, what the source offers. ``workflows.console`` prints that line (and no
+traceback) for the `luigi` command; `make dataset` prints it and exits 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pipeline.build_settings import BuildSettings
+
+
+class BuildParameterError(ValueError):
+    """A build parameter is invalid; ``str()`` is the one line to show the user."""
+
+
+# (parameter as typed on the command line, attribute, smallest allowed value)
+_MINIMUMS = (("--models-per-category", "models_per_category", 0), ("--batch-size", "batch_size", 1),
+             ("--views", "views", 1), ("--variants", "variants", 1), ("--image-size", "image_size", 8),
+             ("--out-size", "out_size", 8), ("--seed", "seed", 0))
+_OVERRIDES = (("--prepare-settings", "prepare_settings"), ("--render-settings", "render_settings"),
+              ("--augment-settings", "augment_settings"), ("--shard-settings", "shard_settings"))
+
+
+def check_settings(s: BuildSettings) -> None:
+    """Numbers in range, the source present, every settings JSON parsed and type-checked."""
+    for flag, attr, low in _MINIMUMS:
+        value = getattr(s, attr)
+        if not isinstance(value, int) or value < low:
+            extra = " (0 = every model)" if attr == "models_per_category" else ""
+            raise BuildParameterError(f"{flag} must be an integer >= {low}{extra}, got {value!r}")
+    if not s.is_procedural and not Path(s.source).is_dir():
+        raise BuildParameterError(f"--source {s.source!r} is neither 'procedural' nor a folder")
+    for flag, method in _OVERRIDES:
+        try:
+            getattr(s, method)()
+        except (ValueError, TypeError) as exc:  # json.JSONDecodeError is a ValueError
+            raise BuildParameterError(f"{flag}: {exc}") from None
+    sh = s.shard_settings()
+    if sh.max_samples_per_shard < 1 or sh.max_bytes_per_shard < 1 or sh.points < 1:
+        raise BuildParameterError("--shard-settings: max_samples_per_shard, max_bytes_per_shard and points must be >= 1")
+
+
+def check_fraction(value: float) -> None:
+    if not 0.0 <= value <= 1.0:
+        raise BuildParameterError(f"--max-failed-fraction must lie in [0, 1], got {value!r}")
+
+
+def check_categories(s: BuildSettings, categories: list[str]) -> None:
+    """Every name is a plain folder name the source offers (a name such as '..' or 'a/b' would
+    write outside the dataset folder)."""
+    from pipeline.sources import EXTRA_SYNSETS, SHAPENET_SYNSETS, detect_layout, list_categories
+
+    for name in categories:
+        if name in ("", ".", "..") or "/" in name or "\\" in name or name.startswith((".", "_")):
+            raise BuildParameterError(f"--categories: {name!r} is not a category name")
+    offered = list_categories(s.source)
+    also = set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values()) \
+        if detect_layout(s.source) == "shapenet" else set()
+    unknown = [c for c in categories if c not in offered and c not in also]
+    if unknown:
+        raise BuildParameterError(
+            f"--categories: unknown {', '.join(map(repr, unknown))} for source {s.source!r}; "
+            f"it has: {', '.join(offered) if offered else 'no category folders'}")
+    if not categories:
+        raise BuildParameterError(f"source {s.source!r} has no categories (expected <source>/<category>/ folders)")
+    if not s.is_procedural:  # listing names only; the procedural source names its own models
+        import itertools
+
+        from pipeline.sources import ModelIdClash, iter_models
+
+        for c in categories:
+            try:
+                for _ in itertools.islice(iter_models(s.source, c), s.limit):
+                    pass
+            except ModelIdClash as exc:
+                raise BuildParameterError(str(exc)) from None
