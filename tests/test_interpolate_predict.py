@@ -69,3 +69,20 @@ def test_interpolation_endpoints_equal_the_inputs(checkpoint, tmp_path):
     for space in ("patch", "latent"):
         assert np.allclose(res["params"][space][0], pa, atol=1e-6) and np.allclose(res["params"][space][-1], pb, atol=1e-6)
     assert sorted(p.name for p in tmp_path.glob("latent_*.obj")) == ["latent_00.obj", "latent_01.obj", "latent_02.obj"]
+
+
+@pytest.mark.parametrize("guard", [True, False])
+def test_predict_with_a_part_switched_off_exports_a_closed_mesh(tmp_path, guard):
+    """`predict --part guard=off` swaps the guard's patches for its closing patches: no holes
+    (the knife template: small, so the full export stays fast)."""
+    t = load_template("knife")
+    model = SketchToPatches(t.initial_params())  # zero last layer: predicts the template itself
+    model.eval()
+    s = FitSettings(dataset="-", category="knife", template="knife", out=str(tmp_path), image_size=32)
+    save_checkpoint(tmp_path / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    sketch = tmp_path / "s.png"
+    cv2.imwrite(str(sketch), box_sketch(np.array([1, 0.3, 0.2]) / 1.06, camera(30, 20, 32), 32, 1))
+    res = predict(tmp_path / "checkpoint.pt", [sketch], tmp_path / "out", {"guard": guard})
+    assert res["mesh"]["boundary_edges"] == 0 and res["mesh"]["watertight"]
+    assert res["patches"] == len(t.active_patches({"guard": guard}))
+    assert (res["patches"] < t.num_patches - len(t.closing_patches["guard"]) - len(t.closing_patches["pommel"])) == (not guard)

@@ -177,3 +177,23 @@ def test_bad_templates_raise_named_errors(tmp_path):
         load_template("no-such-template")
     with pytest.raises(TemplateError, match="parameters"):
         t.patches_from_params(torch.zeros(1, 5))
+
+
+def test_active_patches_follow_optional_and_closing_parts(tmp_path):
+    t = junction_template()
+    t.closing_patches = {"right": [1]}  # a stand-in: patch 1 only while "right" is off
+    t.part_groups = {"body": ["a", "b"], "side": ["c"]}
+    assert t.part_names == ["right"]
+    assert t.active_patches() == [0, 2] and t.active_patches({"right": True}) == [0, 2]
+    assert t.active_patches({"right": False}) == [0, 1]
+    with pytest.raises(ValueError, match="no optional part"):
+        t.active_patches({"wheel": False})
+    save_template(t, tmp_path / "t.json")
+    again = load_template_file(tmp_path / "t.json")
+    assert again.closing_patches == {"right": [1]} and again.part_groups == {"body": ["a", "b"], "side": ["c"]}
+    data = t.to_json()
+    data["closing_patches"] = {"right": [7]}
+    with pytest.raises(TemplateError, match="closing patches of 'right'"):
+        Template.from_json(data)
+    # templates without them keep the old file layout
+    assert "closing_patches" not in junction_template().to_json()

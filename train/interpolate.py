@@ -32,9 +32,10 @@ def interpolate(
     series = {"patch": lerp(pa, pb, steps), "latent": [model.decode_latent(z) for z in lerp(za, zb, steps)]}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    keep = template.active_patches()  # every optional part present, closing patches left out
     for name, params in series.items():
         for k, p in enumerate(params):
-            patches = template.patches_from_params(p.double())[0].numpy()
+            patches = template.patches_from_params(p.double())[0].numpy()[keep]
             mesh = quad_mesh(patches, alpha=alpha)
             write_obj(out / f"{name}_{k:02d}.obj", mesh.vertices, mesh.triangles())
     arrays = {name: torch.cat(ps).numpy() for name, ps in series.items()}

@@ -59,13 +59,11 @@ class Objective:
         return torch.stack([self.mask_for((meta or {}).get(PRESENT_PARTS)) for meta in metas]).to(device)
 
     def mask_for(self, present: list[str] | None) -> Tensor:
-        """(P,) bool patch mask for a model with the part families ``present`` (None: all)."""
-        mask = torch.ones(self.template.num_patches, dtype=torch.bool)
-        parts = set(self.template.optional_parts) | set(self.closing)
-        for part in parts:
-            has = present is None or part in present
-            mask[self.template.optional_parts.get(part, [])] = has
-            mask[self.closing.get(part, [])] = not has
+        """(P,) bool patch mask for a model with the part families ``present`` (None: all), from
+        the template's own rule (``Template.active_patches``)."""
+        parts = {p: present is None or p in present for p in self.template.part_names}
+        mask = torch.zeros(self.template.num_patches, dtype=torch.bool)
+        mask[self.template.active_patches(parts)] = True
         return mask
 
     def groups(self, batch: dict, device: torch.device) -> Groups | None:

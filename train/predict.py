@@ -10,6 +10,7 @@ frame; the CAD files are scaled and unit-tagged by ``CadUnits``.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -52,15 +53,6 @@ def load_predictor(checkpoint: str | Path) -> tuple[SketchToPatches, Template, d
     return model_from_checkpoint(ckpt, template), template, ckpt
 
 
-def kept_patches(template: Template, parts: dict[str, bool]) -> np.ndarray:
-    """Indices of patches to export: optional parts switched off are dropped."""
-    drop = {i for name, on in parts.items() if not on for i in template.optional_parts.get(name, [])}
-    unknown = set(parts) - set(template.optional_parts)
-    if unknown:
-        raise ValueError(f"template has no optional part(s) {sorted(unknown)}; it has {sorted(template.optional_parts)}")
-    return np.array([i for i in range(template.num_patches) if i not in drop], dtype=int)
-
-
 def predicted_template(template: Template, params: torch.Tensor) -> Template:
     """The template with its points moved to the prediction (junction t from the logits)."""
     pos = template.points_from_params(params[None].double())[0].numpy()
@@ -71,8 +63,8 @@ def predicted_template(template: Template, params: torch.Tensor) -> Template:
             points.append(FreePoint(tuple(float(x) for x in pos[i])))
         else:
             points.append(JunctionPoint(p.curve, float(torch.sigmoid(params[offsets[i]].double()))))
-    return Template(points, template.curves, template.patches, f"{template.name}-prediction",
-                    template.optional_parts, template.symmetry, {**template.metadata, "predicted": True})  # fmt: skip
+    return dataclasses.replace(template, points=points, name=f"{template.name}-prediction",
+                               metadata={**template.metadata, "predicted": True})  # fmt: skip
 
 
 def mesh_problems(edges: dict, hits: Intersections, step_solid: bool, free_edges: int) -> list[str]:
@@ -147,6 +139,7 @@ def predict(
     params = model(images)[0]
     out = Path(out)
     save_template(predicted_template(template, params), out / "patches.json")
-    keep = kept_patches(template, parts or {})
+    # a part switched off drops its patches and brings in its closing patches: still closed
+    keep = template.active_patches(parts)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
     return export_patches(patches, out, units)

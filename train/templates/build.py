@@ -6,10 +6,15 @@ template, and sample its surface. The template of the model with the smallest su
 distance to all others is the category template. Labels present in only some models (airplane
 engines) are optional parts; the median is taken among models that have every label, so the
 template carries the optional patches and the trainer can toggle them.
+
+With a patch budget (``BuildSettings.budget``, e.g. the paper's counts in
+``budget.PAPER_PATCHES``) the median's cuboids are coarsened until the template fits
+(``budget.py``); every template records its Chamfer distance to the median model.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -19,6 +24,7 @@ import numpy as np
 from pipeline.normalize import apply_transform, unit_sphere_transform
 from pipeline.seeding import rng_for
 from pipeline.sheets import save_png
+from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
 from train.templates.format import Template, save_template
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
 from train.templates.median import chamfer_matrix, median_index, sample_surface
@@ -27,13 +33,17 @@ from train.templates.render import render_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 # The paper's regularizers per category (§3.3): template normals wherever a category template
-# exists, symmetry for airplanes and cars; cars fit wheels and body apart (§4).
-SYMMETRY_REGULARIZED = ("airplane", "car")
-PART_GROUPS = {"car": {"wheels": ["wheel_front", "wheel_rear"]}}
+# exists, symmetry for airplanes and cars (only their templates declare a symmetry plane; every
+# template is still built mirror-symmetric).
+SYMMETRY_PLANE = ("airplane", "car")
+# Patch labels whose Chamfer/normal terms are computed apart from the rest (the paper: car wheels).
+PART_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
+    "car": (("wheels", ("wheel_front", "wheel_rear")),),
+}
 
 
 def category_regularizers(category: str) -> dict[str, float]:
-    return {"template_normal": 1e-4, **({"symmetry": 1.0} if category in SYMMETRY_REGULARIZED else {})}
+    return {"template_normal": 1e-4, **({"symmetry": 1.0} if category in SYMMETRY_PLANE else {})}
 Progress = Callable[[int, int, str], None] | None
 
 
@@ -43,6 +53,7 @@ class BuildSettings:
     seed: int = 0
     chamfer_points: int = 2048
     template: TemplateSettings = TemplateSettings()
+    budget: dict[str, int] | None = None  # max patches per category (missing: no budget)
 
 
 @dataclass
@@ -54,8 +65,21 @@ class CategoryResult:
     failures: dict[str, str]
 
 
-def build_category(category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None) -> CategoryResult:
-    """The category template (median model's), built from ``settings.n_models`` procedural models."""
+@dataclass
+class Median:
+    """The median model of a category: its normalized boxes and surface samples."""
+
+    boxes: list
+    cloud: np.ndarray
+    template_settings: TemplateSettings  # optional labels and part groups of the category
+    model_ids: list[str]
+    chosen: str
+    chamfer_sums: list[float]
+    failures: dict[str, str]
+
+
+def category_median(category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None) -> Median:
+    """Generate ``settings.n_models`` procedural models and pick the median (complete) one."""
     from pipeline.shapes import generate
 
     clouds, ids, label_sets, boxes_of = [], [], [], {}
@@ -88,23 +112,50 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
     tsettings = TemplateSettings(
         snap_tol=settings.template.snap_tol,
         symmetric=settings.template.symmetric,
+        declare_symmetry=category in SYMMETRY_PLANE,
         optional_labels=tuple(optional),
+        part_groups=PART_GROUPS.get(category, ()),
     )
-    tpl = template_from_boxes(
-        boxes_of[ids[chosen]],
-        name=category,
-        settings=tsettings,
-        metadata={
-            "category": category,
-            "source": "procedural",
-            "seed": settings.seed,
-            "n_models": len(ids),
-            "median_model": ids[chosen],
-        },
-    )
+    return Median(boxes_of[ids[chosen]], clouds[chosen], tsettings, ids, ids[chosen], [float(s) for s in sums], failures)
+
+
+def build_category(category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None) -> CategoryResult:
+    """The category template (median model's), built from ``settings.n_models`` procedural models."""
+    med = category_median(category, settings, progress)
+    meta = {"category": category, "source": "procedural", "seed": settings.seed, "n_models": len(med.model_ids),
+            "median_model": med.chosen}  # fmt: skip
+    budget = (settings.budget or {}).get(category)
+    if budget is None:
+        tpl = template_from_boxes(med.boxes, name=category, settings=med.template_settings)
+        dist_to_median = template_chamfer(tpl, med.cloud, np.random.default_rng([settings.seed, 7919]))
+    else:
+        pick = within_budget(candidates(med.boxes, med.cloud, med.template_settings, category, settings.seed), budget)
+        tpl, dist_to_median = pick.template, pick.chamfer
+        meta.update(patch_budget=budget, min_part_volume=pick.coarsening.min_volume, merge_labels=pick.coarsening.merge_labels)
+    tpl.metadata.update(meta, chamfer_to_median=round(float(dist_to_median), 6))
     tpl.regularizers = category_regularizers(category)
-    tpl.part_groups = dict(PART_GROUPS.get(category, {}))
-    return CategoryResult(tpl, ids, ids[chosen], [float(s) for s in sums], failures)
+    return CategoryResult(tpl, med.model_ids, med.chosen, med.chamfer_sums, med.failures)
+
+
+def size_table(categories: list[str], settings: BuildSettings = BuildSettings()) -> str:
+    """Markdown table per category: the full construction (no budget), the paper-budget pick, the
+    Pareto front of patch count vs Chamfer to the median model over the coarsening sweep."""
+    lines = [
+        "| category | no budget: patches / Chamfer | paper budget | pick: patches / Chamfer | pick: snap, min volume, merged labels | Pareto front (patches: Chamfer) |",
+        "|---|---:|---:|---:|---|---|",
+    ]
+    for n, cat in enumerate(categories):
+        med = category_median(cat, settings)
+        cands = candidates(med.boxes, med.cloud, med.template_settings, cat, settings.seed)
+        default = next(c for c in cands if c.coarsening == Coarsening(settings.template.snap_tol))
+        budget = PAPER_PATCHES[cat]
+        pick = within_budget(cands, budget)
+        front = ", ".join(f"{c.patches}: {c.chamfer:.3f}" for c in pareto(cands))
+        pc = pick.coarsening
+        lines.append(f"| {cat} | {default.patches} / {default.chamfer:.4f} | {budget} | {pick.patches} / {pick.chamfer:.4f} | "
+                     f"{pc.snap_tol:g}, {pc.min_volume:g}, {'yes' if pc.merge_labels else 'no'} | {front} |")  # fmt: skip
+        print(f"[{n + 1}/{len(categories)}] {cat}: {len(cands)} constructions", file=sys.stderr, flush=True)
+    return "\n".join(lines) + "\n"
 
 
 def write_template_png(tpl: Template, path: Path, size: int = 384) -> None:

@@ -5,6 +5,9 @@ polygon — corners plus the junction points lying on its curves — so patches 
 T-junctions share vertices exactly and the welded result can be tested for watertightness.
 The fan is exact for planar convex patches (templates built from cuboids); for curved patches it
 is a coarse approximation used only for topology.
+
+Checks run on one on/off combination of optional parts: ``active`` patch ids, by default
+``tpl.active_patches()`` (every part present, closing patches left out).
 """
 
 from __future__ import annotations
@@ -14,20 +17,30 @@ import torch
 
 from train.templates.format import JunctionPoint, Template
 
+def _active(tpl: Template, active: list[int] | None) -> list[int]:
+    return tpl.active_patches() if active is None else list(active)
+
+
+def part_combinations(tpl: Template) -> list[dict[str, bool]]:
+    """Every on/off combination of the template's optional parts (all present first)."""
+    names = tpl.part_names
+    return [{n: not (m >> b) & 1 for b, n in enumerate(names)} for m in range(2 ** len(names))]
+
 
 def point_positions(tpl: Template) -> np.ndarray:
     with torch.no_grad():
         return tpl.points_from_params(tpl.initial_params(torch.float64))[0].numpy()
 
 
-def patch_polygons(tpl: Template) -> list[list[int]]:
-    """Per patch, its boundary point ids in order (P00 → P10 → P11 → P01, junctions inserted)."""
+def patch_polygons(tpl: Template, active: list[int] | None = None) -> list[list[int]]:
+    """Per active patch, its boundary point ids in order (P00 → P10 → P11 → P01, junctions inserted)."""
     on_curve: dict[int, list[tuple[float, int]]] = {}
     for i, p in enumerate(tpl.points):
         if isinstance(p, JunctionPoint):
             on_curve.setdefault(p.curve, []).append((p.t, i))
     polys = []
-    for patch in tpl.patches:
+    for pi in _active(tpl, active):
+        patch = tpl.patches[pi]
         poly: list[int] = []
         for c, rev in zip(patch.curves, patch.reverse):
             seq = _curve_points(tpl, c, on_curve)
@@ -49,27 +62,28 @@ def _curve_points(tpl: Template, c: int, on_curve: dict[int, list[tuple[float, i
     return parent[i : j + 1] if i <= j else parent[j : i + 1][::-1]
 
 
-def conforming_mesh(tpl: Template) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (template points, then one centre per patch), faces, and each face's patch id."""
+def conforming_mesh(tpl: Template, active: list[int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (template points, then one centre per active patch), faces, each face's patch id."""
     pos = point_positions(tpl)
-    polys = patch_polygons(tpl)
+    ids = _active(tpl, active)
+    polys = patch_polygons(tpl, ids)
     verts = [pos]
     faces, owner = [], []
     n = len(pos)
-    for pi, poly in enumerate(polys):
+    for k_poly, (pi, poly) in enumerate(zip(ids, polys)):
         centre = pos[poly].mean(axis=0)
         verts.append(centre[None])
-        c = n + pi
+        c = n + k_poly
         for k in range(len(poly)):
             faces.append((c, poly[k], poly[(k + 1) % len(poly)]))
             owner.append(pi)
     return np.concatenate(verts), np.array(faces, np.int64), np.array(owner, np.int64)
 
 
-def closed_manifold_problems(tpl: Template) -> list[str]:
+def closed_manifold_problems(tpl: Template, active: list[int] | None = None) -> list[str]:
     """Empty when every boundary edge is used once in each direction and each vertex's fan is one disk."""
     problems = []
-    polys = patch_polygons(tpl)
+    polys = patch_polygons(tpl, active)
     directed: dict[tuple[int, int], int] = {}
     for poly in polys:
         for k in range(len(poly)):
@@ -98,8 +112,8 @@ def closed_manifold_problems(tpl: Template) -> list[str]:
     return problems
 
 
-def euler_characteristic(tpl: Template) -> int:
-    v, f, _ = conforming_mesh(tpl)
+def euler_characteristic(tpl: Template, active: list[int] | None = None) -> int:
+    v, f, _ = conforming_mesh(tpl, active)
     edges = {tuple(sorted((int(a), int(b)))) for tri in f for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0]))}
     return len(np.unique(f)) - len(edges) + len(f)
 
@@ -119,9 +133,9 @@ def junction_errors(tpl: Template) -> np.ndarray:
     return np.array(errs)
 
 
-def self_intersections(tpl: Template, tol: float = 1e-9) -> list[tuple[int, int]]:
-    """Pairs of non-adjacent patches whose triangles touch or cross (edge–triangle piercing test)."""
-    verts, faces, owner = conforming_mesh(tpl)
+def self_intersections(tpl: Template, tol: float = 1e-9, active: list[int] | None = None) -> list[tuple[int, int]]:
+    """Pairs of non-adjacent active patches whose triangles touch or cross (edge–triangle piercing)."""
+    verts, faces, owner = conforming_mesh(tpl, active)
     adjacent = set(tpl.adjacency())
     tri = verts[faces]  # (F, 3, 3)
     lo, hi = tri.min(1) - tol, tri.max(1) + tol
@@ -157,3 +171,20 @@ def _edges_hit(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
         t = np.einsum("ij,ij->i", e2, qv) * inv
         hit |= ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= -tol) & (t <= 1 + tol)
     return hit
+
+
+def surface_components(tpl: Template, active: list[int] | None = None) -> int:
+    """Number of connected pieces of the active patches (patches touching at a curve or point)."""
+    ids = _active(tpl, active)
+    root = {i: i for i in ids}
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            root[i] = root[root[i]]
+            i = root[i]
+        return i
+
+    for i, j in tpl.adjacency():
+        if i in root and j in root:
+            root[find(i)] = find(j)
+    return len({find(i) for i in ids})

@@ -23,6 +23,11 @@ A template is a deformable set of Coons patches that share control points. It is
                                        # P(0,0)→P(1,0), c2 right →P(1,1), c3 top →P(0,1),
                                        # c4 left →P(0,0); P_s × P_t points outward
       "optional_parts": {"turbine": [patch ids]},
+                                       # patches present only when the part is present
+      "closing_patches": {"turbine": [patch ids]},
+                                       # patches present only when the part is ABSENT: they close
+                                       # the surface where the part was attached (written only
+                                       # when some template part has them)
       "part_groups": {"wheels": ["wheel_front", "wheel_rear"]},
                                        # optional: patch labels whose Chamfer and normal terms are
                                        # computed apart from the rest (the paper's car wheels);
@@ -35,6 +40,9 @@ A template is a deformable set of Coons patches that share control points. It is
                                        # other, and points on the plane
       "metadata": {...}                # free-form (source, category, construction settings)
     }
+
+With optional parts, ``Template.active_patches({"turbine": False})`` is the patch set of one
+on/off combination; every combination is a closed surface (templates built from cuboids).
 
 Parameter vector (what the network outputs): points in order; a free point contributes its
 x, y, z; a junction point one number, logit(t). ``Template.patches_from_params`` maps a batch
@@ -115,6 +123,7 @@ class Template:
     optional_parts: dict[str, list[int]] = field(default_factory=dict)
     symmetry: Symmetry | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    closing_patches: dict[str, list[int]] = field(default_factory=dict)
     part_groups: dict[str, list[str]] = field(default_factory=dict)
     regularizers: dict[str, float] = field(default_factory=dict)
 
@@ -137,6 +146,27 @@ class Template:
     @property
     def patch_labels(self) -> list[str]:
         return [p.label for p in self.patches]
+
+    @property
+    def part_names(self) -> list[str]:
+        """Names of the parts that can be switched on/off (optional or closing patches)."""
+        return sorted(set(self.optional_parts) | set(self.closing_patches))
+
+    def active_patches(self, parts: dict[str, bool] | None = None) -> list[int]:
+        """Patch ids making the surface for the given parts (missing names: present).
+
+        A patch listed under ``optional_parts[name]`` needs the part present; one listed under
+        ``closing_patches[name]`` needs it absent; a patch in several lists needs all conditions.
+        """
+        parts = dict(parts or {})
+        unknown = set(parts) - set(self.part_names)
+        if unknown:
+            raise ValueError(f"template has no optional part(s) {sorted(unknown)}; it has {self.part_names}")
+        off = set()
+        for name in self.part_names:
+            present = bool(parts.get(name, True))
+            off.update(self.closing_patches.get(name, []) if present else self.optional_parts.get(name, []))
+        return [i for i in range(len(self.patches)) if i not in off]
 
     # ---- compile: validation and an evaluation schedule -----------------------------------
     def _compile(self) -> None:
@@ -170,9 +200,10 @@ class Template:
             for k in range(4):
                 if chain[k][1] != chain[(k + 1) % 4][0]:
                     raise TemplateError(f"patch {pi}: curve {k + 1} does not end where curve {(k + 1) % 4 + 1} starts")
-        for name, ids in self.optional_parts.items():
-            if any(not 0 <= i < len(self.patches) for i in ids):
-                raise TemplateError(f"optional part {name!r}: bad patch index")
+        for kind, table in (("optional part", self.optional_parts), ("closing patches of", self.closing_patches)):  # fmt: skip
+            for name, ids in table.items():
+                if any(not 0 <= i < len(self.patches) for i in ids):
+                    raise TemplateError(f"{kind} {name!r}: bad patch index")
         for name in self.regularizers:
             if name not in REGULARIZERS:
                 raise TemplateError(f"regularizer {name!r}: expected one of {REGULARIZERS}")
@@ -447,6 +478,8 @@ class Template:
                 "self": list(self.symmetry.self_points),
             },
             "metadata": self.metadata,
+            **({"closing_patches": {k: [int(i) for i in v] for k, v in sorted(self.closing_patches.items())}}
+               if self.closing_patches else {}),
             # written only when set, so templates without them keep their bytes
             **({"part_groups": {k: list(v) for k, v in sorted(self.part_groups.items())}} if self.part_groups else {}),
             **({"regularizers": dict(sorted(self.regularizers.items()))} if self.regularizers else {}),
@@ -477,6 +510,7 @@ class Template:
             optional_parts={k: [int(i) for i in v] for k, v in data.get("optional_parts", {}).items()},
             symmetry=symmetry,
             metadata=dict(data.get("metadata", {})),
+            closing_patches={k: [int(i) for i in v] for k, v in data.get("closing_patches", {}).items()},
             part_groups={k: [str(x) for x in v] for k, v in data.get("part_groups", {}).items()},
             regularizers={k: float(v) for k, v in data.get("regularizers", {}).items()},
         )

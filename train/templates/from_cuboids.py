@@ -5,6 +5,10 @@ each merged rectangle becomes a patch whose sides are straight cubic Bézier cur
 control points at 1/3 and 2/3); equal sides are one shared curve, a side lying inside a longer
 side across from it is a junction sub-curve of that parent, and a corner strictly inside a side
 is a junction point on it (parameter t along the straight, uniformly parameterized parent).
+
+Optional labels (airplane engines) give optional patches (present with the part) and closing
+patches (present without it, sealing the body where the part was attached), so every on/off
+combination of optional parts is a closed surface, as in the paper's turbine case.
 """
 
 from __future__ import annotations
@@ -24,7 +28,10 @@ from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
 class TemplateSettings:
     snap_tol: float = 0.01  # grid lines closer than this (normalized units) are snapped together
     symmetric: bool = True  # mirror the cuboids across x = 0 and merge in mirror pairs
+    declare_symmetry: bool = True  # store the plane and point pairs (the symmetry loss uses them)
     optional_labels: tuple[str, ...] = ("turbine", "engine")
+    # part groups with separate loss terms: group name -> labels; unlisted labels form "body"
+    part_groups: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
 def normalize_boxes(boxes: Sequence[CuboidLike], center: np.ndarray, scale: float) -> list[Box]:
@@ -44,7 +51,9 @@ def patch_set_from_boxes(
     """Lattice quad mesh of the union merged into rectangles, and the lattice (normalized boxes)."""
     if settings.symmetric:
         boxes = mirrored_boxes(boxes)
-    lattice = build_lattice(boxes, settings.snap_tol, symmetric_x=settings.symmetric)
+    present = {b.label for b in boxes}
+    optional = tuple(lab for lab in settings.optional_labels if lab in present)
+    lattice = build_lattice(boxes, settings.snap_tol, symmetric_x=settings.symmetric, optional=optional)
     return merge_quads(boundary_quads(lattice), mirror=settings.symmetric), lattice
 
 
@@ -58,6 +67,7 @@ def template_from_boxes(
     ps, lattice = patch_set_from_boxes(boxes, settings)
     labels = lattice.labels
     tpl = template_from_patch_set(ps, labels, name=name, optional_labels=settings.optional_labels)
+    tpl.part_groups = part_groups(tpl.patch_labels, settings.part_groups)
     tpl.metadata = {
         "construction": "cuboids",
         "lattice_lines": [len(ln) for ln in lattice.lines],
@@ -65,7 +75,7 @@ def template_from_boxes(
         "snap_tol": settings.snap_tol,
         **(metadata or {}),
     }
-    if settings.symmetric:
+    if settings.symmetric and settings.declare_symmetry:
         tpl.find_symmetry(0.0, tol=1e-6)
     return tpl
 
@@ -144,7 +154,20 @@ def template_from_patch_set(
         for lab in sorted(set(optional_labels))
         if any(p.label == lab for p in patches)
     }
-    return Template(points=points, curves=curves, patches=patches, name=name, optional_parts=optional)
+    closing: dict[str, list[int]] = {}
+    for i, r in enumerate(rects):
+        if r.neg >= 0:
+            closing.setdefault(labels[r.neg], []).append(i)
+    return Template(points=points, curves=curves, patches=patches, name=name, optional_parts=optional,
+                    closing_patches=dict(sorted(closing.items())))  # fmt: skip
+
+
+def part_groups(labels: list[str], groups: Sequence[tuple[str, Sequence[str]]]) -> dict[str, list[str]]:
+    """Patch labels per group (``groups``: name → labels), keeping the labels the template has;
+    labels in no group form one more group in the loss."""
+    have = set(labels)
+    out = {name: sorted(lab for lab in labs if lab in have) for name, labs in groups}
+    return {name: labs for name, labs in sorted(out.items()) if labs}
 
 
 def _pt(line: tuple, t: int) -> tuple[int, int, int]:

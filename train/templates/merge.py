@@ -3,9 +3,11 @@
 Quads are visited in order of descending area; each is merged with a coplanar neighbour of the
 same part label when the union is a rectangle and the result keeps every junction well defined:
 
-* along any lattice line, the patch sides on the two sides of the line must nest — each side is
-  either equal to the side across, or contains all sides across it (it is their parent curve),
-  or lies inside a single side across it (it is a junction curve on that parent);
+* along any lattice line, the distinct patch sides must nest — each side is either equal to the
+  sides across, or contains all other sides overlapping it (it is their parent curve), or lies
+  inside a single other side (it is a junction curve on that parent); with optional parts more
+  than two patches can share a line (a part's side, the body's, a closing patch's), and the rule
+  over distinct sides keeps every on/off combination nested;
 * a patch corner may lie strictly inside at most one patch side (its single parent curve),
   otherwise it would be a junction point on two curves at once;
 * the curves' dependencies (a curve whose end is a junction point depends on that point's
@@ -42,6 +44,7 @@ class Rect:
     c0: int
     c1: int
     label: int
+    neg: int = -1  # optional label whose absence this patch needs (closing patch), -1 if none
 
     def corners(self) -> list[tuple[int, int, int]]:
         """Corners P00, P10, P11, P01 counter-clockwise seen from outside (Coons (s, t) order)."""
@@ -120,9 +123,9 @@ class PatchSet:
 
     # -- validity --
     def line_ok(self, line: LineKey) -> bool:
-        sides = sorted(self.line_sides.get(line, {}).items(), key=lambda kv: kv[1])
-        for pid, (lo, hi) in sides:
-            across = [(l2, h2) for p2, (l2, h2) in sides if p2 != pid and min(hi, h2) > max(lo, l2)]
+        spans = sorted(set(self.line_sides.get(line, {}).values()))
+        for lo, hi in spans:
+            across = [(l2, h2) for l2, h2 in spans if (l2, h2) != (lo, hi) and min(hi, h2) > max(lo, l2)]
             if all(lo <= l2 and h2 <= hi for l2, h2 in across):
                 continue  # equal to, or parent of, everything across it
             if len(across) == 1 and across[0][0] <= lo and hi <= across[0][1]:
@@ -213,31 +216,32 @@ class PatchSet:
 
 def union_rect(a: Rect, b: Rect) -> Rect | None:
     """The rectangle a ∪ b when a and b are coplanar, same label, and share a whole side."""
-    if (a.axis, a.sign, a.k, a.label) != (b.axis, b.sign, b.k, b.label):
+    if (a.axis, a.sign, a.k, a.label, a.neg) != (b.axis, b.sign, b.k, b.label, b.neg):
         return None
     if (a.b0, a.b1) == (b.b0, b.b1) and (a.c1 == b.c0 or b.c1 == a.c0):
-        return Rect(a.axis, a.sign, a.k, a.b0, a.b1, min(a.c0, b.c0), max(a.c1, b.c1), a.label)
+        return Rect(a.axis, a.sign, a.k, a.b0, a.b1, min(a.c0, b.c0), max(a.c1, b.c1), a.label, a.neg)
     if (a.c0, a.c1) == (b.c0, b.c1) and (a.b1 == b.b0 or b.b1 == a.b0):
-        return Rect(a.axis, a.sign, a.k, min(a.b0, b.b0), max(a.b1, b.b1), a.c0, a.c1, a.label)
+        return Rect(a.axis, a.sign, a.k, min(a.b0, b.b0), max(a.b1, b.b1), a.c0, a.c1, a.label, a.neg)
     return None
 
 
 def mirror_rect(r: Rect, nx: int) -> Rect:
     """Mirror image across the lattice's symmetric x grid (x line i ↔ nx-1-i)."""
     if r.axis == 0:
-        return Rect(0, -r.sign, nx - 1 - r.k, r.b0, r.b1, r.c0, r.c1, r.label)
+        return Rect(0, -r.sign, nx - 1 - r.k, r.b0, r.b1, r.c0, r.c1, r.label, r.neg)
     if r.axis == 1:  # b = z, c = x
-        return Rect(1, r.sign, r.k, r.b0, r.b1, nx - 1 - r.c1, nx - 1 - r.c0, r.label)
-    return Rect(2, r.sign, r.k, nx - 1 - r.b1, nx - 1 - r.b0, r.c0, r.c1, r.label)  # b = x
+        return Rect(1, r.sign, r.k, r.b0, r.b1, nx - 1 - r.c1, nx - 1 - r.c0, r.label, r.neg)
+    return Rect(2, r.sign, r.k, nx - 1 - r.b1, nx - 1 - r.b0, r.c0, r.c1, r.label, r.neg)  # b = x
 
 
 def rects_from_quads(mesh: QuadMesh) -> list[Rect]:
     out = []
-    for q, a, s, lab in zip(mesh.quads, mesh.axis, mesh.sign, mesh.label):
+    neg = mesh.neg if mesh.neg is not None else np.full(len(mesh.quads), -1)
+    for q, a, s, lab, n in zip(mesh.quads, mesh.axis, mesh.sign, mesh.label, neg):
         pts = mesh.vertices[q]
         b, c = (int(a) + 1) % 3, (int(a) + 2) % 3
         out.append(Rect(int(a), int(s), int(pts[0, a]), int(pts[:, b].min()), int(pts[:, b].max()),
-                        int(pts[:, c].min()), int(pts[:, c].max()), int(lab)))
+                        int(pts[:, c].min()), int(pts[:, c].max()), int(lab), int(n)))
     return out
 
 
@@ -259,7 +263,7 @@ def merge_quads(mesh: QuadMesh, mirror: bool = False, max_passes: int = 1000) ->
 
 
 def _rect_key(r: Rect) -> tuple:
-    return (r.axis, r.sign, r.k, r.b0, r.b1, r.c0, r.c1, r.label)
+    return (r.axis, r.sign, r.k, r.b0, r.b1, r.c0, r.c1, r.label, r.neg)
 
 
 def _neighbours(ps: PatchSet, r: Rect) -> list[Rect]:

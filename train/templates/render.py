@@ -22,17 +22,21 @@ def patch_colors(n: int) -> np.ndarray:
     return (np.array(out).reshape(-1, 3) * 255).round().astype(np.uint8)
 
 
-def template_mesh(tpl: Template, k: int = 10, params: torch.Tensor | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Grid triangulation of every patch: vertices (V, 3), faces (F, 3), patch id per face."""
+def template_mesh(
+    tpl: Template, k: int = 10, params: torch.Tensor | None = None, parts: dict[str, bool] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grid triangulation of the active patches (``parts``: see ``Template.active_patches``):
+    vertices (V, 3), faces (F, 3), patch id per face."""
+    ids = np.array(tpl.active_patches(parts), dtype=int)
     with torch.no_grad():
         p = tpl.initial_params(torch.float64) if params is None else params.double()
-        patches = tpl.patches_from_params(p.reshape(1, -1))[0]
+        patches = tpl.patches_from_params(p.reshape(1, -1))[0][ids]
         verts, faces = triangulate_patches(patches, k)  # (P, k*k, 3), (f, 3)
     n_p = verts.shape[0]
     v = verts.reshape(-1, 3).numpy()
     offs = (np.arange(n_p) * k * k)[:, None, None]
     f = (faces.numpy()[None] + offs).reshape(-1, 3)
-    owner = np.repeat(np.arange(n_p), len(faces))
+    owner = np.repeat(ids, len(faces))
     return v, f, owner
 
 
@@ -49,11 +53,12 @@ def render_template(
     views: tuple[tuple[float, float], ...] = ((30.0, 20.0), (210.0, 25.0)),
     k: int = 12,
     params: torch.Tensor | None = None,
+    parts: dict[str, bool] | None = None,
 ) -> np.ndarray:
     """Side-by-side views (uint8 RGB, size × len(views)·size) with one colour per patch."""
-    v, f, owner = template_mesh(tpl, k, params)
+    v, f, owner = template_mesh(tpl, k, params, parts)
     colors = patch_colors(tpl.num_patches)[owner].astype(np.float64)
-    seam = np.tile(_seam_mask(k), tpl.num_patches)
+    seam = np.tile(_seam_mask(k), len(np.unique(owner)))
     colors[seam] *= 0.8
     images = [render_mesh(v, f, size=size, azimuth_deg=az, elevation_deg=el, face_colors=colors.astype(np.uint8)) for az, el in views]
     return np.concatenate(images, axis=1)
