@@ -33,9 +33,8 @@ class Objective:
         self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
         with torch.no_grad():
             self.template_patches = template.patches_from_params(template.initial_params()[None])
-        self.closing = dict(getattr(template, "closing_patches", None) or {})
         self.patch_points = _patch_point_incidence(template)  # (P, N) bool
-        group_names = list(getattr(template, "part_groups", None) or {})
+        group_names = list(template.part_groups)
         self.group_of_label = {lab: g for g, name in enumerate(group_names) for lab in template.part_groups[name]}
         self.n_groups = len(group_names) + 1  # labels in no group form the last one
         self.patch_group = torch.tensor(
@@ -54,7 +53,7 @@ class Objective:
         """(B, P) bool: patches of optional parts a model lacks are off (e.g. engines), and the
         template's closing patches of a part are on only when the part is absent. A model
         without ``present_parts`` (a source without part labels) counts as having every part."""
-        if not self.template.optional_parts and not self.closing:
+        if not self.template.part_names:
             return None
         return torch.stack([self.mask_for((meta or {}).get(PRESENT_PARTS)) for meta in metas]).to(device)
 
