@@ -20,10 +20,10 @@ from augment.metrics import stroke_scores
 from augment.settings import AugmentSettings
 from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
-from pipeline.atomic import read_json, write_json
-from pipeline.errors import ModelError
-from pipeline.layout import Progress, model_dir, read_record, write_failed, write_ok
-from pipeline.sheets import save_png
+from pipeline.core.atomic import read_json, write_json
+from pipeline.core.errors import ModelError
+from pipeline.core.records import Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.core.images import save_png
 
 _VIEW = re.compile(r"view_(\d+)\.png$")
 

@@ -9,7 +9,7 @@ import numpy as np
 from augment.pencil import draw_pencil
 from augment.settings import REFERENCE_SIZE, AugmentSettings
 from augment.strokes import augment_strokes, resample_strokes
-from pipeline.seeding import rng_for
+from pipeline.core.seeding import rng_for
 
 
 @dataclasses.dataclass

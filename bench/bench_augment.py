@@ -29,8 +29,8 @@ from augment.settings import REFERENCE_SIZE, AugmentSettings  # noqa: E402
 from augment.strokes import augment_strokes  # noqa: E402
 from augment.variants import reference_strokes  # noqa: E402
 from augment.vectorize import vectorize  # noqa: E402
-from pipeline.atomic import read_json  # noqa: E402
-from pipeline.seeding import rng_for  # noqa: E402
+from pipeline.core.atomic import read_json  # noqa: E402
+from pipeline.core.seeding import rng_for  # noqa: E402
 
 
 def render_samples(folder: Path) -> Path:

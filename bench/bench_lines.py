@@ -3,7 +3,7 @@
     OMP_NUM_THREADS=1 .venv/bin/python bench/bench_lines.py [--source procedural|FOLDER]
         [--per-category 3] [--views 4] [--work /tmp/lines] [--sheet docs/images/lines_before_after.png]
 
-Per model: prepare (pipeline.prepare), then render the same cameras twice: "before" draws the
+Per model: prepare (pipeline.prepare.batch), then render the same cameras twice: "before" draws the
 watertight envelope ``mesh.ply`` (what the render stage drew until it read ``lines.ply``),
 "after" draws ``lines.ply``, the cleaned source surface. Both drawings are scored against the
 source mesh in the prepared frame (render.line_fidelity): sharp-edge recall (visible source
@@ -26,18 +26,18 @@ from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pipeline.atomic import read_json  # noqa: E402
-from pipeline.config import stage_key  # noqa: E402
-from pipeline.layout import read_record  # noqa: E402
-from pipeline.line_mesh import line_mesh  # noqa: E402
-from pipeline.mesh_io import load_mesh  # noqa: E402
-from pipeline.prepare import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch  # noqa: E402
-from pipeline.sheets import save_png  # noqa: E402
-from pipeline.sources import list_categories, list_models  # noqa: E402
+from pipeline.core.atomic import read_json  # noqa: E402
+from pipeline.core.stage_keys import stage_key  # noqa: E402
+from pipeline.core.records import read_record  # noqa: E402
+from pipeline.prepare.line_mesh import line_mesh  # noqa: E402
+from pipeline.sources.mesh_io import load_mesh  # noqa: E402
+from pipeline.prepare.batch import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch  # noqa: E402
+from pipeline.core.images import save_png  # noqa: E402
+from pipeline.sources.layouts import list_categories, list_models  # noqa: E402
 from render.batch import render_batch  # noqa: E402
 from render.line_fidelity import ViewScore, score_view  # noqa: E402
 from render.settings import RenderSettings  # noqa: E402
-from render.sheet import sheet_of_rows  # noqa: E402
+from pipeline.sheets.render import sheet_of_rows  # noqa: E402
 
 DRAWN = {"before": MESH_FILE, "after": LINE_MESH_FILE}
 

@@ -32,9 +32,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
-from pipeline.atomic import read_json  # noqa: E402
-from pipeline.build_settings import BuildSettings  # noqa: E402
-from pipeline.layout import model_dir  # noqa: E402
+from pipeline.core.atomic import read_json  # noqa: E402
+from pipeline.dataset.build_settings import BuildSettings  # noqa: E402
+from pipeline.core.records import model_dir  # noqa: E402
 from pipeline.shapes import CATEGORIES  # noqa: E402
 from workflows import steps  # noqa: E402
 
@@ -51,7 +51,7 @@ def write_corpus(root: Path, per_category: int, seed: int = 0) -> dict[str, int]
     """The fixed corpus as ``<root>/<category>/<id>.ply``; returns triangles per model id."""
     import trimesh
 
-    from pipeline.sources import list_models
+    from pipeline.sources.layouts import list_models
 
     faces = {}
     for cat in CATEGORIES:

@@ -28,8 +28,8 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.layout import ModelRef  # noqa: E402
-from pipeline.prepare import PrepareSettings, prepare_model  # noqa: E402
+from pipeline.core.records import ModelRef  # noqa: E402
+from pipeline.prepare.batch import PrepareSettings, prepare_model  # noqa: E402
 
 
 def soup_with_faces(target: int) -> trimesh.Trimesh:

@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from pipeline.shapes import CATEGORIES, generate
-from pipeline.thumbnails import render_mesh
+from pipeline.core.thumbnails import render_mesh
 
 
 def median_time(fn, repeats: int) -> float:

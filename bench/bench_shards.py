@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import webdataset as wds
 
-from pipeline.atomic import write_json, write_npy
-from pipeline.seeding import rng_for
-from pipeline.shards import ModelDirs, ShardSettings, list_shards, write_category_shards
+from pipeline.core.atomic import write_json, write_npy
+from pipeline.core.seeding import rng_for
+from pipeline.dataset.shards import ModelDirs, ShardSettings, list_shards, write_category_shards
 
 
 def fake_model(root: Path, category: str, model_id: str, views: int = 4, variants: int = 2) -> ModelDirs:

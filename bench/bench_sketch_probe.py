@@ -19,7 +19,7 @@ import json
 import numpy as np
 import torch
 
-from pipeline.part_schema import PRESENT_PARTS
+from pipeline.core.schema import PRESENT_PARTS
 from train.data import DataSettings, make_loader
 from train.fit import load_checkpoint, model_from_checkpoint
 from train.model import SketchToPatches

@@ -7,7 +7,7 @@ import time
 
 import torch
 
-from pipeline.normalize import unit_sphere_transform
+from pipeline.core.normalize import unit_sphere_transform
 from pipeline.shapes import CATEGORIES, generate
 from train.templates.checks import closed_manifold_problems, self_intersections
 from train.templates.from_cuboids import normalize_boxes, template_from_boxes

@@ -17,9 +17,9 @@ import numpy as np
 import torch
 import webdataset as wds
 
-from pipeline.mesh_io import read_ply
-from pipeline.sheets import contact_sheet, save_png
-from pipeline.thumbnails import render_mesh
+from pipeline.sources.mesh_io import read_ply
+from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.thumbnails import render_mesh
 from train.data import read_png, sketch_table, to_network
 from train.fit import load_checkpoint, model_from_checkpoint
 from train.geometry.triangulate import welded_mesh

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def _verify(args: argparse.Namespace) -> int:
-    from pipeline.verify import verify_dataset
+    from pipeline.dataset.verify import verify_dataset
 
     problems = verify_dataset(Path(args.dataset_dir))
     for p in problems:
@@ -21,7 +21,7 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace) -> int:
-    from pipeline.preview import write_previews
+    from pipeline.sheets.dataset import write_previews
 
     for path in write_previews(Path(args.dataset_dir), Path(args.out), args.max_models, args.categories):
         print(path)

@@ -21,8 +21,8 @@ import threading
 import time
 from pathlib import Path
 
-from pipeline.errors import ModelError
-from pipeline.layout import Progress, model_dir, read_record, write_failed
+from pipeline.core.errors import ModelError
+from pipeline.core.records import Progress, model_dir, read_record, write_failed
 from render.job import PARENT_ENV, PROGRESS_PREFIX, write_job
 from render.settings import RenderSettings
 

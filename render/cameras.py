@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.seeding import rng_for
+from pipeline.core.seeding import rng_for
 from render.settings import RenderSettings
 
 # (azimuth, elevation) of the fixed rig; the top view is looked at from +y.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from pipeline.atomic import read_json, write_json
+from pipeline.core.atomic import read_json, write_json
 from render.settings import RenderSettings
 
 PROGRESS_PREFIX = "@@render-progress "

@@ -21,8 +21,8 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from pipeline.line_mesh import border_edges, sharp_edges
-from pipeline.thumbnails import rasterize
+from pipeline.prepare.line_mesh import border_edges, sharp_edges
+from pipeline.core.thumbnails import rasterize
 
 INK_LEVEL = 160  # gray below this is ink (lines are black, anti-aliased, on white)
 STEP_PX = 0.5    # sampling step along projected edges

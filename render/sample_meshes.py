@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.atomic import atomic_path
+from pipeline.core.atomic import atomic_path
 
 
 def normalized(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

@@ -20,11 +20,11 @@ from typing import Iterator
 import numpy as np
 from PIL import Image
 
-from pipeline.atomic import write_bytes, write_json
-from pipeline.config import settings_hash
-from pipeline.errors import ModelError
-from pipeline.layout import model_dir, read_record, write_failed, write_ok
-from pipeline.sheets import encode_png
+from pipeline.core.atomic import write_bytes, write_json
+from pipeline.core.stage_keys import settings_hash
+from pipeline.core.errors import ModelError
+from pipeline.core.records import model_dir, read_record, write_failed, write_ok
+from pipeline.core.images import encode_png
 from render import cameras
 from render.job import PARENT_ENV, PROGRESS_PREFIX, read_job
 from render.settings import RenderSettings

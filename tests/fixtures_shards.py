@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import webdataset as wds
 
-from pipeline.atomic import write_json
-from pipeline.seeding import rng_for
+from pipeline.core.atomic import write_json
+from pipeline.core.seeding import rng_for
 
 _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
 _EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if np.sum(_CORNERS[a] != _CORNERS[b]) == 1]

@@ -11,8 +11,8 @@ from PIL import Image
 
 from augment.batch import augment_batch
 from augment.settings import AugmentSettings
-from pipeline.atomic import read_json, write_json
-from pipeline.layout import write_ok
+from pipeline.core.atomic import read_json, write_json
+from pipeline.core.records import write_ok
 
 SETTINGS = AugmentSettings(variants=3, out_size=64)
 CAT = "testcat"

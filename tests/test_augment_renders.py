@@ -54,9 +54,9 @@ def test_vectorization_f1_on_sample_renders(sample_renders):
 
 @pytest.mark.slow
 def test_vectorization_f1_on_procedural_categories(tmp_path):
-    from pipeline.prepare import prepare_batch
-    from pipeline.prepare_settings import PrepareSettings
-    from pipeline.sources import list_models
+    from pipeline.prepare.batch import prepare_batch
+    from pipeline.prepare.settings import PrepareSettings
+    from pipeline.sources.layouts import list_models
 
     f1s = []
     for cat in ("airplane", "car", "mug", "guitar", "knife"):
@@ -75,7 +75,7 @@ def test_vectorization_f1_on_procedural_categories(tmp_path):
 def test_contact_sheet(sample_renders, tmp_path):
     from PIL import Image
 
-    from augment.sheet import main
+    from pipeline.sheets.augment import main
 
     root, _ = sample_renders
     out = tmp_path / "sheet.png"

@@ -18,11 +18,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 from as_user import call_as  # noqa: E402
 from bad_inputs import write_corpus, write_good, write_unreadable, write_unusual_good  # noqa: E402
 
-from pipeline.manifest import read_manifest  # noqa: E402
-from pipeline.mesh_io import _DENIED, load_mesh  # noqa: E402
-from pipeline.prepare import PrepareSettings, prepare_batch  # noqa: E402
-from pipeline.shards import list_shards  # noqa: E402
-from pipeline.sources import list_models  # noqa: E402
+from pipeline.dataset.manifest import read_manifest  # noqa: E402
+from pipeline.sources.mesh_io import _DENIED, load_mesh  # noqa: E402
+from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
+from pipeline.dataset.shards import list_shards  # noqa: E402
+from pipeline.sources.layouts import list_models  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
 
 

@@ -4,9 +4,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.atomic import atomic_path, read_json, write_json
-from pipeline.config import settings_hash, stage_key
-from pipeline.seeding import derive_seed, rng_for
+from pipeline.core.atomic import atomic_path, read_json, write_json
+from pipeline.core.stage_keys import settings_hash, stage_key
+from pipeline.core.seeding import derive_seed, rng_for
 
 
 def test_seed_depends_on_every_key_part():
@@ -28,8 +28,8 @@ def test_settings_hash_changes_with_settings_and_upstream():
 
 
 def test_code_version_bump_rekeys_the_stage_and_downstream(monkeypatch):
-    from pipeline import config
-    from pipeline.build_settings import BuildSettings
+    from pipeline.core import stage_keys as config
+    from pipeline.dataset.build_settings import BuildSettings
 
     s = BuildSettings()
     before = {st: s.stage_dir(st).name for st in ("prepare", "render", "augment", "shards")}

@@ -8,7 +8,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
-from pipeline.errors import ModelError
+from pipeline.core.errors import ModelError
 from train.augmentation import Jitter, jitter_image
 from train.data import DataSettings, ShardStream, make_loader, shard_urls
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.shards import list_shards
+from pipeline.dataset.shards import list_shards
 from workflows.steps import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,6 +1,6 @@
 """A build SIGKILLed at any moment and restarted ends byte-identical to an uninterrupted one.
 
-The kill is deterministic: ``SKETCH_FAULT_KILL_AT="<glob>:<n>"`` makes pipeline.atomic SIGKILL the
+The kill is deterministic: ``SKETCH_FAULT_KILL_AT="<glob>:<n>"`` makes pipeline.core.atomic SIGKILL the
 whole process group (Luigi and its Blender worker) just before the n-th rename onto a matching
 path, so the temp file is left behind as after a power cut.
 """

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import luigi
 
-from pipeline.build_settings import BuildSettings
-from pipeline.manifest import read_manifest
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.dataset.manifest import read_manifest
 from workflows import BuildCategory
-from pipeline.listing import current_listing
+from pipeline.sources.listing import current_listing
 from workflows.steps import batch_path
 
 # a timeout no Blender start can meet: the worker "hangs" from the supervisor's point of view

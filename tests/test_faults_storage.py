@@ -17,9 +17,9 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from as_user import call_as  # noqa: E402
 
-from pipeline.atomic import StorageError, storage_error, write_bytes
-from pipeline.layout import ModelRef
-from pipeline.prepare import PrepareSettings, prepare_batch
+from pipeline.core.atomic import StorageError, storage_error, write_bytes
+from pipeline.core.records import ModelRef
+from pipeline.prepare.batch import PrepareSettings, prepare_batch
 
 
 def test_storage_errors_are_translated() -> None:

@@ -19,8 +19,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from bad_inputs import BAD_PARAMETERS, CLASHES  # noqa: E402
 
-from pipeline.build_settings import BuildSettings  # noqa: E402
-from pipeline.verify import verify_dataset  # noqa: E402
+from pipeline.dataset.build_settings import BuildSettings  # noqa: E402
+from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
 from workflows.console import Progress  # noqa: E402
 from workflows.make_dataset import main as make_dataset  # noqa: E402

@@ -7,7 +7,7 @@ import numpy as np
 import trimesh
 from PIL import Image, ImageDraw
 
-from pipeline.line_mesh import border_edges, line_mesh, sharp_edges
+from pipeline.prepare.line_mesh import border_edges, line_mesh, sharp_edges
 from render.line_fidelity import score_view
 from render.cameras import make_view
 from render.settings import RenderSettings

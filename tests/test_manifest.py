@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.manifest import category_fragment, content_checksum, read_manifest, write_fragment, write_manifest
-from pipeline.shards import ShardSettings, write_category_shards
+from pipeline.dataset.manifest import category_fragment, content_checksum, read_manifest, write_fragment, write_manifest
+from pipeline.dataset.shards import ShardSettings, write_category_shards
 from test_shards import make_model_dirs
 
 

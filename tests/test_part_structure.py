@@ -11,9 +11,9 @@ import pytest
 import torch
 import webdataset as wds
 
-from pipeline.part_schema import POINT_PART_NAMES, PRESENT_PARTS, part_family, present_parts
+from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS, part_family, present_parts
 from pipeline.shapes import generate
-from pipeline.shards import list_shards
+from pipeline.dataset.shards import list_shards
 from train.data import DataSettings, collate, decode_sample
 from train.losses import Groups, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.weights import LossWeights, template_weights

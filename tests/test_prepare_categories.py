@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.layout import read_record
-from pipeline.prepare import PrepareSettings, prepare_batch
+from pipeline.core.records import read_record
+from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.shapes import CATEGORIES
-from pipeline.sources import list_categories, list_models, procedural_source_dir
+from pipeline.sources.layouts import list_categories, list_models, procedural_source_dir
 from tests.test_prepare_core import assert_prepared
 
 DEFAULTS = PrepareSettings()

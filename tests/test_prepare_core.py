@@ -10,9 +10,9 @@ import point_cloud_utils as pcu
 import pytest
 import trimesh
 
-from pipeline.layout import ModelRef, read_record
-from pipeline.mesh_io import read_ply
-from pipeline.prepare import PrepareSettings, prepare_batch, prepare_model
+from pipeline.core.records import ModelRef, read_record
+from pipeline.sources.mesh_io import read_ply
+from pipeline.prepare.batch import PrepareSettings, prepare_batch, prepare_model
 
 FAST = PrepareSettings(resolution=3000, max_faces=4000, n_samples=16384)
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.layout import ModelRef, read_record
-from pipeline.mesh_io import read_ply
-from pipeline.prepare import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch
+from pipeline.core.records import ModelRef, read_record
+from pipeline.sources.mesh_io import read_ply
+from pipeline.prepare.batch import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch
 from pipeline.shapes import DETACHABLE, generate
 
 FAST = PrepareSettings(resolution=3000, max_faces=6000)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
-from pipeline.prepare_sheet import main
+from pipeline.sheets.prepare import main
 
 
 def test_prepare_sheet_command(tmp_path):

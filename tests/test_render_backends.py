@@ -15,8 +15,8 @@ import pytest
 from PIL import Image
 
 from augment.metrics import stroke_scores
-from pipeline.atomic import read_json
-from pipeline.build_settings import BuildSettings
+from pipeline.core.atomic import read_json
+from pipeline.dataset.build_settings import BuildSettings
 from render.batch import render_batch
 from render.edge_lines import draw_strokes
 from render.settings import RenderSettings
@@ -32,8 +32,8 @@ SEED = 3
 def rendered(tmp_path_factory):
     """One prepared model per category, drawn by both backends at the default 256² (one batch
     per backend: a single Blender start)."""
-    from pipeline.prepare import PrepareSettings, prepare_batch
-    from pipeline.sources import list_models
+    from pipeline.prepare.batch import PrepareSettings, prepare_batch
+    from pipeline.sources.layouts import list_models
 
     work = tmp_path_factory.mktemp("backends")
     items = []

@@ -15,7 +15,7 @@ from PIL import Image
 from scipy import ndimage
 from scipy.spatial import ConvexHull
 
-from pipeline.atomic import read_json
+from pipeline.core.atomic import read_json
 from render import batch as batch_mod
 from render.batch import RenderBatchError, render_batch
 from render.cameras import project
@@ -203,7 +203,7 @@ def test_relative_paths_resolved(rendered, tmp_path, monkeypatch):
 
 
 def test_contact_sheet_from_stage(rendered, tmp_path):
-    from render.sheet import main, sheet_from_stage
+    from pipeline.sheets.render import main, sheet_from_stage
 
     plain = sheet_from_stage(rendered["stage"], per_category=3)
     over = sheet_from_stage(rendered["stage"], per_category=3, strokes=True)

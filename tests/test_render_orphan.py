@@ -12,7 +12,7 @@ from pathlib import Path
 
 import trimesh
 
-from pipeline.mesh_io import write_ply
+from pipeline.sources.mesh_io import write_ply
 from render.batch import JOB_PREFIX, remove_stale_jobs
 
 ROOT = Path(__file__).resolve().parents[1]

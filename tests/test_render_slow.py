@@ -10,7 +10,7 @@ import trimesh
 from PIL import Image
 from scipy import ndimage
 
-from pipeline.atomic import read_json
+from pipeline.core.atomic import read_json
 from render.batch import render_batch
 from render.cameras import project
 from render.settings import RenderSettings
@@ -20,9 +20,9 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
+    from pipeline.prepare.batch import LINE_MESH_FILE, PrepareSettings, prepare_batch
     from pipeline.shapes import CATEGORIES
-    from pipeline.sources import list_models
+    from pipeline.sources.layouts import list_models
 
     work = tmp_path_factory.mktemp("work")
     out = {}
@@ -100,9 +100,9 @@ def test_fragment_joining_only_chains_captured_points(prepared, tmp_path):
 def test_line_mesh_drawings_are_faithful_and_byte_identical(prepared, tmp_path):
     """The car's line mesh drawn twice: same bytes; its source's sharp edges are inked and the
     ink lies on the source's lines (bench/bench_lines.py measures this per category)."""
-    from pipeline.line_mesh import line_mesh
-    from pipeline.layout import read_record
-    from pipeline.mesh_io import load_mesh
+    from pipeline.prepare.line_mesh import line_mesh
+    from pipeline.core.records import read_record
+    from pipeline.sources.mesh_io import load_mesh
     from render.line_fidelity import ViewScore, score_view
 
     work, items = prepared

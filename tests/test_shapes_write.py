@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from pipeline.shapes import generate
-from pipeline.shapes.sheet import build_sheet
+from pipeline.sheets.shapes import build_sheet
 
 
 def test_write_round_trips(tmp_path):

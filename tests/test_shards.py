@@ -12,8 +12,8 @@ import pytest
 import webdataset as wds
 from PIL import Image
 
-from pipeline.atomic import write_json, write_npy
-from pipeline.shards import (
+from pipeline.core.atomic import write_json, write_npy
+from pipeline.dataset.shards import (
     ModelDirs,
     ShardSettings,
     assemble_sample,
@@ -21,7 +21,7 @@ from pipeline.shards import (
     list_shards,
     write_category_shards,
 )
-from pipeline.splits import split_of
+from pipeline.core.splits import split_of
 
 
 def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, variants: int = 2,

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.layout import ModelRef
-from pipeline.sources import (
+from pipeline.core.records import ModelRef
+from pipeline.sources.layouts import (
     SHAPENET_SYNSETS,
     detect_layout,
     iter_models,

@@ -9,8 +9,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-from pipeline.sheets import contact_sheet, encode_png, save_png
-from pipeline.thumbnails import render_mesh
+from pipeline.core.images import contact_sheet, encode_png, save_png
+from pipeline.core.thumbnails import render_mesh
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.manifest import write_manifest
-from pipeline.verify import verify_dataset
+from pipeline.dataset.manifest import write_manifest
+from pipeline.dataset.verify import verify_dataset
 from test_manifest import build
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 import webdataset as wds
 
-from pipeline.build_settings import BuildSettings
-from pipeline.manifest import read_manifest
-from pipeline.shards import REQUIRED_MEMBERS, file_sha256, list_shards
-from pipeline.verify import verify_dataset
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.dataset.manifest import read_manifest
+from pipeline.dataset.shards import REQUIRED_MEMBERS, file_sha256, list_shards
+from pipeline.dataset.verify import verify_dataset
 from workflows import BuildCategory, BuildDataset
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,9 +24,9 @@ import torch
 import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from pipeline.errors import ModelError
-from pipeline.part_schema import POINT_PARTS_MEMBER
-from pipeline.seeding import rng_for
+from pipeline.core.errors import ModelError
+from pipeline.core.schema import POINT_PARTS_MEMBER
+from pipeline.core.seeding import rng_for
 from train.augmentation import Jitter, jitter_image
 
 SPLITS = ("train", "val", "test")

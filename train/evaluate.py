@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from pipeline.atomic import write_json
+from pipeline.core.atomic import write_json
 from train.data import DataSettings, make_loader
 from train.fit import load_checkpoint, model_from_checkpoint
 from train.geometry.sampling import sample_surface_uniform

@@ -24,8 +24,8 @@ import torch
 from torch import Tensor
 from torch.nn.parallel import DistributedDataParallel
 
-from pipeline.atomic import atomic_path, dumps_json, write_bytes
-from pipeline.seeding import derive_seed
+from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
+from pipeline.core.seeding import derive_seed
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.losses.total import TERMS, weighted_sum

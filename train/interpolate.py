@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline.atomic import atomic_path, write_json
+from pipeline.core.atomic import atomic_path, write_json
 from train.export.obj import write_obj
 from train.export.quadmesh import quad_mesh
 from train.predict import load_predictor, load_sketches

@@ -13,7 +13,7 @@ import math
 import torch
 from torch import Tensor
 
-from pipeline.part_schema import POINT_PART_NAMES, PRESENT_PARTS
+from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.geometry.coons import evaluate_patches
 from train.losses.chamfer import Groups
 from train.losses.collision import collision_pairs

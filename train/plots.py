@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from pipeline.atomic import atomic_path  # noqa: E402
+from pipeline.core.atomic import atomic_path  # noqa: E402
 
 
 def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:

@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.atomic import write_npy
-from pipeline.errors import ModelError
-from pipeline.sheets import save_png
-from pipeline.thumbnails import DEFAULT_COLOR, render_mesh
+from pipeline.core.atomic import write_npy
+from pipeline.core.errors import ModelError
+from pipeline.core.images import save_png
+from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
 from train.data import read_png, to_network
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import write_iges

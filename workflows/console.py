@@ -23,10 +23,10 @@ from typing import TextIO
 
 import luigi
 
-from pipeline.build_settings import BuildSettings
-from pipeline.layout import RECORD, model_dir
-from pipeline.manifest import read_manifest
-from pipeline.splits import SPLITS
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.core.records import RECORD, model_dir
+from pipeline.dataset.manifest import read_manifest
+from pipeline.core.splits import SPLITS
 from workflows import steps
 from workflows.validate import BuildParameterError
 

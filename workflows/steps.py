@@ -3,7 +3,7 @@ tested directly. Each batch step writes a small JSON listing its models' outcome
 
 ``{"stage", "category", "batch", "models": [{"model_id", "work_id", "status", "stage", "error"?}]}``
 
-Steps take the category's model list (pipeline.listing): a batch is a slice of it, and models are
+Steps take the category's model list (pipeline.sources.listing): a batch is a slice of it, and models are
 handed to the stages under their work ids, which name their output folders.
 
 A model that failed upstream is carried forward with the stage where it failed, so the shard
@@ -18,13 +18,13 @@ import socket
 import time
 from pathlib import Path
 
-from pipeline.atomic import read_json, storage_error, write_json
-from pipeline.build_settings import BuildSettings
-from pipeline.config import settings_hash
-from pipeline.layout import ModelRef, Progress, model_dir
-from pipeline.manifest import (FRAGMENT, build_manifest, category_fragment, content_checksum, read_fragment,
+from pipeline.core.atomic import read_json, storage_error, write_json
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.core.stage_keys import settings_hash
+from pipeline.core.records import ModelRef, Progress, model_dir
+from pipeline.dataset.manifest import (FRAGMENT, build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
-from pipeline.shards import ModelDirs, file_sha256, list_shards, write_category_shards
+from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, write_category_shards
 
 BATCHES = "_batches"
 RUNS = "_runs"
@@ -57,8 +57,8 @@ def _ref(category: str, m: dict) -> ModelRef:
 def write_source_list(s: BuildSettings, category: str) -> int:
     """Generate the procedural source's models and store their list (file sources store theirs
     while listing); returns the count."""
-    from pipeline.listing import current_listing, list_path, procedural_tag
-    from pipeline.sources import list_models
+    from pipeline.sources.listing import current_listing, list_path, procedural_tag
+    from pipeline.sources.layouts import list_models
 
     if not s.is_procedural:
         return len(current_listing(s, category)["models"])
@@ -99,7 +99,7 @@ def _upstream(s: BuildSettings, stage: str, lst: dict, batch: int) -> tuple[list
 
 def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
     t0 = time.perf_counter()
-    from pipeline.prepare import prepare_batch
+    from pipeline.prepare.batch import prepare_batch
 
     models = batch_models(s, lst, batch)
     records = prepare_batch([_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
@@ -119,7 +119,7 @@ def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = No
     category = lst["category"]
     ok, failed = _upstream(s, "prepare", lst, batch)
     prep = s.stage_dir("prepare")
-    from pipeline.prepare import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
+    from pipeline.prepare.batch import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
 
     items = [(m["work_id"], model_dir(prep, category, m["work_id"]) / LINE_MESH_FILE) for m in ok]
     records: list[dict] = []
@@ -191,7 +191,7 @@ def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
     try:
         result = write_category_shards(category, dirs, cat_dir, s.shard_settings(),
                                        s.seed, s.shards_key(), s.portable_path, before_cleanup=fragment)
-    except OSError as exc:  # tar writes bypass pipeline.atomic: name the folder and the problem
+    except OSError as exc:  # tar writes bypass pipeline.core.atomic: name the folder and the problem
         raise storage_error(cat_dir, exc) from exc
     write_json(s.stage_dir("shards") / category / "_timing.json", {"seconds": round(time.perf_counter() - t0, 3)})
     if progress is not None:

@@ -12,8 +12,8 @@ from typing import Iterator
 
 import luigi
 
-from pipeline.build_settings import BuildSettings
-from pipeline.listing import current_listing, list_path, read_listing
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.sources.listing import current_listing, list_path, read_listing
 from workflows import steps, validate
 
 
@@ -64,7 +64,7 @@ class _BuildTask(luigi.Task):
 
 
 class _ListedTask(_BuildTask):
-    """A task of one category's model list, named by the list's key (see pipeline.listing)."""
+    """A task of one category's model list, named by the list's key (see pipeline.sources.listing)."""
 
     category = luigi.Parameter()
     listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")
@@ -201,6 +201,6 @@ class BuildDataset(_BuildRoot):
     def category_list(self) -> list[str]:
         if self.categories:
             return [c.strip() for c in str(self.categories).split(",") if c.strip()]
-        from pipeline.sources import list_categories
+        from pipeline.sources.layouts import list_categories
 
         return list_categories(self.source)

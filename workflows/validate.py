@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.build_settings import BuildSettings
+from pipeline.dataset.build_settings import BuildSettings
 
 
 class BuildParameterError(ValueError):
@@ -51,7 +51,7 @@ def check_fraction(value: float) -> None:
 def check_categories(s: BuildSettings, categories: list[str]) -> None:
     """Every name is a plain folder name the source offers (a name such as '..' or 'a/b' would
     write outside the dataset folder)."""
-    from pipeline.sources import EXTRA_SYNSETS, SHAPENET_SYNSETS, detect_layout, list_categories
+    from pipeline.sources.layouts import EXTRA_SYNSETS, SHAPENET_SYNSETS, detect_layout, list_categories
 
     for name in categories:
         if name in ("", ".", "..") or "/" in name or "\\" in name or name.startswith((".", "_")):
@@ -69,7 +69,7 @@ def check_categories(s: BuildSettings, categories: list[str]) -> None:
     if not s.is_procedural:  # listing names only; the procedural source names its own models
         import itertools
 
-        from pipeline.sources import ModelIdClash, iter_models
+        from pipeline.sources.layouts import ModelIdClash, iter_models
 
         for c in categories:
             try:

@@ -32,7 +32,7 @@ def warm_stage_code() -> None:
     import cv2
     import numpy as np
 
-    import pipeline.prepare  # noqa: F401
+    import pipeline.prepare.batch  # noqa: F401
     import render.batch  # noqa: F401
     from augment.vectorize import vectorize
 

@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.seeding import rng_for
+from pipeline.core.seeding import rng_for
 from pipeline.shapes import airplane, bathtub, bottle, car, guitar, gun, knife, mug
 from pipeline.shapes.defects import apply_defects
 from pipeline.shapes.model import Cuboid, Part, ProceduralModel, cuboid_of

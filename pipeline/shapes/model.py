@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import write_bytes, write_json
+from pipeline.core.atomic import write_bytes, write_json
 
 
 @dataclasses.dataclass

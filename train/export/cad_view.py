@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import ModelError
-from pipeline.sheets import save_png
-from pipeline.thumbnails import render_mesh
+from pipeline.core.errors import ModelError
+from pipeline.core.images import save_png
+from pipeline.core.thumbnails import render_mesh
 
 # colour-blind-safe palette cycled over faces (Okabe–Ito, lightened for shading)
 _PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66],

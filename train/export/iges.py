@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import write_bytes
-from pipeline.errors import ModelError
+from pipeline.core.atomic import write_bytes
+from pipeline.core.errors import ModelError
 from train.export.bicubic import bernstein3
 from train.export.units import CadUnits
 

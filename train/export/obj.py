@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import write_bytes
+from pipeline.core.atomic import write_bytes
 
 
 def obj_text(

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_path
+from pipeline.core.atomic import atomic_path
 from train.export.units import CadUnits
 
 # relative to the model's extent: far above rounding of shared control points, far below any

@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from pipeline.sheets import save_png
+    from pipeline.core.images import save_png
     from train.templates.render import render_template
 
     save_png(args.out, np.concatenate([render_template(load_template(t), size=args.size) for t in args.template], axis=1))

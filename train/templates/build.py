@@ -21,9 +21,9 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.normalize import apply_transform, unit_sphere_transform
-from pipeline.seeding import rng_for
-from pipeline.sheets import save_png
+from pipeline.core.normalize import apply_transform, unit_sphere_transform
+from pipeline.core.seeding import rng_for
+from pipeline.core.images import save_png
 from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
 from train.templates.format import Template, save_template
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes

@@ -61,7 +61,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.atomic import dumps_json, write_bytes
+from pipeline.core.atomic import dumps_json, write_bytes
 from train.geometry.bezier import bezier_eval, bezier_subdivide
 
 FORMAT = "coons-template"

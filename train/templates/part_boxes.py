@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline.part_schema import part_family as base_label
+from pipeline.core.schema import part_family as base_label
 from train.templates.lattice import Box, CuboidLike
 
 WALL = 0.12  # cup wall thickness, fraction of the cup's half-width

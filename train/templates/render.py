@@ -7,7 +7,7 @@ import colorsys
 import numpy as np
 import torch
 
-from pipeline.thumbnails import render_mesh
+from pipeline.core.thumbnails import render_mesh
 from train.geometry.triangulate import triangulate_patches
 from train.templates.format import Template
 

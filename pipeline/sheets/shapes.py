@@ -1,6 +1,6 @@
 """Contact sheet of raw procedural shapes: one row per category.
 
-    python -m pipeline.shapes.sheet --out sheets/shapes.png --per-category 6 --seed 0
+    python -m pipeline.sheets.shapes --out sheets/shapes.png --per-category 6 --seed 0
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.sheets import contact_sheet, save_png
+from pipeline.core.images import contact_sheet, save_png
 from pipeline.shapes import CATEGORIES, generate
-from pipeline.thumbnails import render_mesh
+from pipeline.core.thumbnails import render_mesh
 
 # Distinct muted colours per part so the part structure is visible.
 _PALETTE = np.array([

@@ -1,8 +1,8 @@
 """Contact sheet of rendered views: one row per model, its views side by side.
 
-    python -m render.sheet --stage-dir WORK/render-<key> --out sheets/renders.png
-    python -m render.sheet --work-dir WORK --out sheets/renders.png      # newest render-* folder
-    python -m render.sheet --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
+    python -m pipeline.sheets.render --stage-dir WORK/render-<key> --out sheets/renders.png
+    python -m pipeline.sheets.render --work-dir WORK --out sheets/renders.png      # newest render-* folder
+    python -m pipeline.sheets.render --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
 
 ``--procedural`` first makes the inputs itself: procedural models → prepare stage → render stage
 (all under WORK, keyed like the workflow's stage folders), then draws the sheet.
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from pipeline.atomic import read_json
-from pipeline.layout import read_record
-from pipeline.sheets import contact_sheet, save_png
+from pipeline.core.atomic import read_json
+from pipeline.core.records import read_record
+from pipeline.core.images import contact_sheet, save_png
 from render.settings import RenderSettings
 
 TYPE_COLOURS = {"silhouette": (220, 30, 30), "border": (30, 120, 220), "crease": (20, 160, 60)}
@@ -80,9 +80,9 @@ def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
 def render_procedural(work_dir: Path, categories: list[str], per_category: int, seed: int,
                       settings: RenderSettings) -> Path:
     """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
-    from pipeline.config import stage_key
-    from pipeline.prepare import LINE_MESH_FILE, PrepareSettings, prepare_batch
-    from pipeline.sources import list_models
+    from pipeline.core.stage_keys import stage_key
+    from pipeline.prepare.batch import LINE_MESH_FILE, PrepareSettings, prepare_batch
+    from pipeline.sources.layouts import list_models
     from render.batch import render_batch
 
     prep_settings = PrepareSettings()

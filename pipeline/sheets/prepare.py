@@ -1,6 +1,6 @@
 """Contact sheet of raw vs prepared shapes: per category a row of (raw, prepared) pairs.
 
-    .venv/bin/python -m pipeline.prepare_sheet --out sheets/prepared.png --per-category 3
+    .venv/bin/python -m pipeline.sheets.prepare --out sheets/prepared.png --per-category 3
 
 Models are prepared (or reused, if already prepared) under ``--work``; raw thumbnails are drawn
 from the source files, prepared ones from mesh.ply, both by the CPU thumbnail renderer.
@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.config import stage_key
-from pipeline.errors import ModelError
-from pipeline.mesh_io import load_mesh, read_ply
-from pipeline.prepare import MESH_FILE, PrepareSettings, prepare_batch
-from pipeline.sheets import contact_sheet, save_png
-from pipeline.sources import list_categories, list_models
-from pipeline.thumbnails import render_mesh
+from pipeline.core.stage_keys import stage_key
+from pipeline.core.errors import ModelError
+from pipeline.sources.mesh_io import load_mesh, read_ply
+from pipeline.prepare.batch import MESH_FILE, PrepareSettings, prepare_batch
+from pipeline.core.images import contact_sheet, save_png
+from pipeline.sources.layouts import list_categories, list_models
+from pipeline.core.thumbnails import render_mesh
 
 RAW_COLOR = (0.85, 0.72, 0.6)
 PREPARED_COLOR = (0.62, 0.74, 0.88)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from pipeline.manifest import read_manifest
-from pipeline.sheets import contact_sheet, save_png
-from pipeline.shards import iter_shard
-from pipeline.splits import SPLITS
+from pipeline.dataset.manifest import read_manifest
+from pipeline.core.images import contact_sheet, save_png
+from pipeline.dataset.shards import iter_shard
+from pipeline.core.splits import SPLITS
 
 
 def _decode_gray(data: bytes) -> np.ndarray:

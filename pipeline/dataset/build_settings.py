@@ -14,8 +14,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from pipeline.config import settings_dict, settings_hash, stage_key
-from pipeline.shards import ShardSettings
+from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
+from pipeline.dataset.shards import ShardSettings
 
 DEFAULT_WORK_DIR = Path("data/work")
 DEFAULT_DATASET_DIR = Path("data/dataset")
@@ -106,7 +106,7 @@ class BuildSettings:
         return self.models_per_category if self.models_per_category > 0 else None
 
     def prepare_settings(self):
-        from pipeline.prepare_settings import PrepareSettings
+        from pipeline.prepare.settings import PrepareSettings
 
         return _replace(PrepareSettings(seed=self.seed), parse_overrides(self.prepare_overrides))
 
@@ -141,7 +141,7 @@ class BuildSettings:
     # ---- keys and folders
     def source_key(self) -> str:
         if self.is_procedural:
-            from pipeline.sources import procedural_source_dir
+            from pipeline.sources.layouts import procedural_source_dir
 
             return procedural_source_dir(Path("."), self.seed).name
         return stage_key("source", {"source": self.source_id(), "seed": self.seed})

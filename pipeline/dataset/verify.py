@@ -12,9 +12,9 @@ import json
 import tarfile
 from pathlib import Path
 
-from pipeline.manifest import FRAGMENT, MANIFEST, content_checksum, read_fragment
-from pipeline.shards import REQUIRED_MEMBERS, file_sha256, iter_shard, list_shards
-from pipeline.splits import SPLITS
+from pipeline.dataset.manifest import FRAGMENT, MANIFEST, content_checksum, read_fragment
+from pipeline.dataset.shards import REQUIRED_MEMBERS, file_sha256, iter_shard, list_shards
+from pipeline.core.splits import SPLITS
 
 
 def _check_sample(shard: str, key: str, members: dict[str, bytes], split: str) -> list[str]:

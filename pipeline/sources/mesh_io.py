@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.atomic import write_bytes
-from pipeline.errors import ModelError
+from pipeline.core.atomic import write_bytes
+from pipeline.core.errors import ModelError
 
 MESH_EXTENSIONS = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
 HEAD_BYTES = 4096

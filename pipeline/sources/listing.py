@@ -18,10 +18,10 @@ import os
 import stat
 from pathlib import Path
 
-from pipeline.atomic import read_json, write_json
-from pipeline.build_settings import BuildSettings
-from pipeline.config import settings_hash
-from pipeline.mesh_io import sha256_file
+from pipeline.core.atomic import read_json, write_json
+from pipeline.dataset.build_settings import BuildSettings
+from pipeline.core.stage_keys import settings_hash
+from pipeline.sources.mesh_io import sha256_file
 
 LISTS = "_lists"
 HASHES = "_hashes.json"
@@ -69,7 +69,7 @@ def work_id(model_id: str, sha: str) -> str:
 
 
 def _procedural(s: BuildSettings, category: str) -> dict:
-    from pipeline.sources import DEFAULT_PROCEDURAL_COUNT, procedural_source_dir
+    from pipeline.sources.layouts import DEFAULT_PROCEDURAL_COUNT, procedural_source_dir
 
     folder = procedural_source_dir(Path(s.work_dir), s.seed) / category
     count = s.limit if s.limit is not None else DEFAULT_PROCEDURAL_COUNT
@@ -84,7 +84,7 @@ def current_listing(s: BuildSettings, category: str) -> dict:
     Raises ModelIdClash (a ValueError) when two files would be the same model."""
     if s.is_procedural:
         return _procedural(s, category)
-    from pipeline.sources import list_models
+    from pipeline.sources.layouts import list_models
 
     refs = list_models(s.source, category, s.limit, s.seed, Path(s.work_dir))
     cache_path = s.stage_dir("source") / category / HASHES

@@ -1,6 +1,6 @@
 """The mesh the renderer draws: the source's own surface, so its sharp edges stay sharp.
 
-The watertight envelope (pipeline.watertight) is what the training targets are sampled on, but
+The watertight envelope (pipeline.prepare.watertight) is what the training targets are sampled on, but
 its voxel-based repair rounds creases off. Freestyle needs no closed solid, only a surface it can
 read edge natures from, so the drawing is made from the source mesh under the prepared mesh's
 normalization, cleaned of what makes Freestyle draw lines the object does not have:
@@ -24,7 +24,7 @@ import numpy as np
 import pymeshlab
 import trimesh
 
-from pipeline.normalize import apply_transform
+from pipeline.core.normalize import apply_transform
 
 
 def line_mesh(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale: float,

@@ -1,6 +1,6 @@
 """Contact sheet of the augment stage: per model a row render → vector strokes → variants.
 
-    python -m augment.sheet --render-dir WORK/render-<key> --out sheets/augment.png
+    python -m pipeline.sheets.augment --render-dir WORK/render-<key> --out sheets/augment.png
 
 Vector strokes are drawn one colour per stroke, so joins and splits are visible.
 """
@@ -19,8 +19,8 @@ from augment.batch import list_views, load_gray
 from augment.settings import AugmentSettings
 from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
-from pipeline.layout import read_record
-from pipeline.sheets import contact_sheet, save_png
+from pipeline.core.records import read_record
+from pipeline.core.images import contact_sheet, save_png
 
 
 def draw_strokes_color(strokes: list[np.ndarray], source_size: int, size: int) -> np.ndarray:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from pipeline.atomic import write_bytes
+from pipeline.core.atomic import write_bytes
 
 _PAD = 4
 _LABEL_H = 14

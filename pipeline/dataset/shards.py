@@ -3,7 +3,7 @@
 A sample's key is ``<category>_<model_id>``; its members are ``points.npy``, one
 ``sketch_<view>_<variant>.png`` per view and variant, ``strokes.json``, ``cameras.json``,
 ``meta.json`` and, where the source has part labels, ``point_parts.npy`` (see
-:mod:`pipeline.part_schema`). Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
+:mod:`pipeline.core.schema`). Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
 every header field is fixed (sorted member order, mtime 0, uid/gid 0, empty user/group names,
 mode 0o644, GNU format): the same inputs give the same bytes.
 
@@ -27,12 +27,12 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from pipeline.atomic import dumps_json, read_json
-from pipeline.errors import ModelError
-from pipeline.part_schema import POINT_PART_NAMES, POINT_PARTS_MEMBER, PRESENT_PARTS, present_parts
-from pipeline.point_parts import label_points, read_obj_parts, source_obj
-from pipeline.seeding import rng_for
-from pipeline.splits import DEFAULT_FRACTIONS, SPLITS, split_of
+from pipeline.core.atomic import dumps_json, read_json
+from pipeline.core.errors import ModelError
+from pipeline.core.schema import POINT_PART_NAMES, POINT_PARTS_MEMBER, PRESENT_PARTS, present_parts
+from pipeline.dataset.point_parts import label_points, read_obj_parts, source_obj
+from pipeline.core.seeding import rng_for
+from pipeline.core.splits import DEFAULT_FRACTIONS, SPLITS, split_of
 
 TAR_FORMAT = tarfile.GNU_FORMAT
 MIN_POINTS = 7000

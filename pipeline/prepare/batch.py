@@ -3,7 +3,7 @@
 Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, lines.ply, samples.npy,
 record.json}``, record last, so a killed batch resumes where it stopped. ``mesh.ply`` is the
 watertight solid the samples lie on; ``lines.ply`` is the cleaned source surface in the same
-frame, which the renderer draws (pipeline.line_mesh: it keeps the source's sharp edges).
+frame, which the renderer draws (pipeline.prepare.line_mesh: it keeps the source's sharp edges).
 ``prepare_batch`` is what the Luigi task calls; ``prepare_model`` does one model and raises
 ModelError for bad input.
 """
@@ -18,17 +18,17 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.atomic import StorageError, write_npy
-from pipeline.errors import ModelError
-from pipeline.layout import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
-from pipeline.line_mesh import line_mesh
-from pipeline.mesh_checks import check_input, closed_surface_problems
-from pipeline.mesh_io import load_mesh, sha256_file, write_ply
-from pipeline.normalize import apply_transform, transform_box, unit_sphere_transform
-from pipeline.prepare_settings import PrepareSettings
-from pipeline.sampling import sample_surface
-from pipeline.seeding import derive_seed, rng_for
-from pipeline.watertight import clean_solid, decimate, make_watertight
+from pipeline.core.atomic import StorageError, write_npy
+from pipeline.core.errors import ModelError
+from pipeline.core.records import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.prepare.line_mesh import line_mesh
+from pipeline.prepare.mesh_checks import check_input, closed_surface_problems
+from pipeline.sources.mesh_io import load_mesh, sha256_file, write_ply
+from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
+from pipeline.prepare.settings import PrepareSettings
+from pipeline.prepare.sampling import sample_surface
+from pipeline.core.seeding import derive_seed, rng_for
+from pipeline.prepare.watertight import clean_solid, decimate, make_watertight
 
 __all__ = ["LINE_MESH_FILE", "MESH_FILE", "PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
@@ -42,7 +42,7 @@ METHOD = {
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
     "line_mesh": "source mesh under the same normalization, vertices merged, degenerate and duplicate"
                  " faces removed, winding made consistent and outward per body, long slivers split, decimated"
-                 " keeping sharp edges above max_line_faces (pipeline.line_mesh)",
+                 " keeping sharp edges above max_line_faces (pipeline.prepare.line_mesh)",
 }
 
 

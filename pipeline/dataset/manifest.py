@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from pipeline import __version__
-from pipeline.atomic import dumps_json, read_json, write_json
-from pipeline.shards import CategoryShards
-from pipeline.splits import SPLITS
+from pipeline.core.atomic import dumps_json, read_json, write_json
+from pipeline.dataset.shards import CategoryShards
+from pipeline.core.splits import SPLITS
 
 MANIFEST = "manifest.json"
 FRAGMENT = "category.json"

@@ -13,10 +13,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from pipeline.errors import ModelError
-from pipeline.normalize import apply_transform
-from pipeline.part_schema import part_family
-from pipeline.sampling import sample_surface
+from pipeline.core.errors import ModelError
+from pipeline.core.normalize import apply_transform
+from pipeline.core.schema import part_family
+from pipeline.prepare.sampling import sample_surface
 
 SAMPLES_PER_PART = 4096
 

@@ -12,8 +12,8 @@ import dataclasses
 from pathlib import Path
 from typing import Callable, Optional
 
-from pipeline.atomic import read_json, write_json
-from pipeline.errors import ModelError
+from pipeline.core.atomic import read_json, write_json
+from pipeline.core.errors import ModelError
 
 RECORD = "record.json"
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.errors import ModelError
+from pipeline.core.errors import ModelError
 
 
 def check_input(

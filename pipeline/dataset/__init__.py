@@ -1,0 +1,1 @@
+"""Last stage: shards, manifest, verification (reads every earlier stage's outputs)."""

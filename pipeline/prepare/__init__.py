@@ -1,0 +1,1 @@
+"""Stage 1: source mesh -> watertight, normalized mesh, line mesh and surface samples."""
