@@ -1,0 +1,102 @@
+"""The package layout is the data flow: every import points down the stage order.
+
+base (pipeline.core, pipeline.shapes) <- sources <- prepare <- render <- augment
+<- dataset writing and sheets <- workflows; ``train`` sees only the base layer.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# (package prefix, level); the longest matching prefix wins.
+LEVELS = {
+    "pipeline.core": 0,
+    "pipeline.shapes": 0,
+    "pipeline.sources": 1,
+    "pipeline.prepare": 2,
+    "render": 3,
+    "augment": 4,
+    "pipeline.dataset": 5,
+    "pipeline.sheets": 5,
+    "pipeline.__main__": 6,
+    "workflows": 6,
+}
+TRAIN_MAY_IMPORT = ("pipeline.core", "pipeline.shapes", "train")
+PACKAGES = ("pipeline", "render", "augment", "train", "workflows")
+
+
+def level_of(module: str) -> int | None:
+    best = None
+    for prefix, level in LEVELS.items():
+        if module == prefix or module.startswith(prefix + "."):
+            if best is None or len(prefix) > len(best[0]):
+                best = (prefix, level)
+    return None if best is None else best[1]
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """Every project module a file imports (function-level imports too), with its line."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.append((node.lineno, node.module))
+            # `from pipeline import x` names a submodule when x is one
+            found += [(node.lineno, f"{node.module}.{a.name}") for a in node.names
+                      if (ROOT / node.module.replace(".", "/") / a.name).exists()
+                      or (ROOT / node.module.replace(".", "/") / f"{a.name}.py").exists()]
+    return [(line, m) for line, m in found if m.split(".")[0] in PACKAGES]
+
+
+def project_files() -> list[Path]:
+    return sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py"))
+
+
+def upward_imports(files: dict[str, Path] | None = None) -> list[str]:
+    """Imports against the stage order, for ``{module name: file}`` (default: the whole project)."""
+    files = files if files is not None else {module_name(p): p for p in project_files()}
+    bad = []
+    for me, path in files.items():
+        for line, target in imported_modules(path):
+            where = f"{path.name if not path.is_relative_to(ROOT) else path.relative_to(ROOT)}:{line} imports {target}"
+            if me.startswith("train"):
+                if not target.startswith(TRAIN_MAY_IMPORT):
+                    bad.append(where + " (train may import only the base layer)")
+                continue
+            mine, theirs = level_of(me), level_of(target)
+            if target.startswith("train"):
+                bad.append(where + " (the dataset side never imports the trainer)")
+            elif mine is not None and theirs is not None and theirs > mine:
+                bad.append(where + f" (level {mine} importing level {theirs})")
+    return bad
+
+
+def test_every_module_has_a_level():
+    unplaced = [module_name(p) for p in project_files()
+                if not module_name(p).startswith("train") and level_of(module_name(p)) is None
+                and module_name(p) != "pipeline"]
+    assert unplaced == []
+
+
+def test_imports_point_down_the_stage_order():
+    assert upward_imports() == []
+
+
+def test_the_check_sees_upward_imports(tmp_path):
+    # The walker must catch what it is for, function-level imports included.
+    base = tmp_path / "probe.py"
+    base.write_text("import numpy\ndef f():\n    from render.settings import RenderSettings\n")
+    trainer = tmp_path / "trainer_probe.py"
+    trainer.write_text("from augment.pencil import draw_pencil\nfrom pipeline.core.atomic import write_json\n")
+    bad = upward_imports({"pipeline.core.probe": base, "train.probe": trainer})
+    assert bad == ["probe.py:3 imports render.settings (level 0 importing level 3)",
+                   "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)"]
