@@ -16,7 +16,7 @@ from typing import Iterable, Iterator
 from pipeline.core.stage_keys import stage_key
 from pipeline.core.records import ModelRef
 from pipeline.sources.mesh_io import MESH_EXTENSIONS
-from pipeline.dataset.shards import sample_key
+from pipeline.core.schema import sample_key
 
 # ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
 # largest gun class, and what the procedural guns imitate); pass "03948459" to read pistols.
