@@ -4,6 +4,8 @@ Writers and readers both import these names; nothing else spells a file name, a 
 ``meta.json`` field or a split. Renaming one here renames it everywhere (and changes the bytes of
 the dataset, so only with a new dataset format).
 
+Procedural source: each ``<id>.obj`` has a sidecar ``sidecar_path(obj)`` with its part labels.
+
 Per-model stage folders, ``<stage-dir>/<category>/<model_id>/``:
 
 - every stage: ``RECORD`` (written last; see :mod:`pipeline.core.records`);
@@ -32,7 +34,16 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 from typing import Any
+
+# ---------------------------------------------------------------- procedural source
+
+
+def sidecar_path(obj_path: Path) -> Path:
+    """The procedural generator's sidecar of an OBJ (part labels, cuboids, defects): same stem, .json."""
+    return obj_path.with_suffix(".json")
+
 
 # ---------------------------------------------------------------- per-model stage folders
 
