@@ -7,6 +7,7 @@ declared field the writer leaves out or an undeclared one it adds.
 
 from __future__ import annotations
 
+import ast
 import io
 import json
 from pathlib import Path
@@ -20,6 +21,7 @@ import webdataset as wds
 from pipeline.core import schema
 from pipeline.dataset.manifest import read_fragment, read_manifest
 from pipeline.dataset.shards import iter_shard, list_shards
+from pipeline.dataset.verify import verify_dataset
 from train.data import DataSettings, collate, decode_sample
 from train.losses.weights import template_weights
 from train.objective import Objective
@@ -30,6 +32,7 @@ from workflows import BuildCategory
 # point_part_names and point_parts.npy), so the objective consumes every part field.
 CATEGORY = "car"
 MODELS = 2
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class Reads(dict):
@@ -90,6 +93,7 @@ def test_writer_writes_exactly_the_declared_members_and_fields(built: Path) -> N
 
 
 def test_manifest_fields_are_the_declared_ones(built: Path) -> None:
+    assert verify_dataset(built) == []  # the verifier reads the same names (key, split, members)
     manifest = read_manifest(built)
     assert set(manifest) == set(schema.MANIFEST_FIELDS)
     frag = read_fragment(built / CATEGORY)
@@ -132,3 +136,24 @@ def test_trainer_reads_only_what_the_writer_wrote(built: Path) -> None:
         assert {schema.PRESENT_PARTS, schema.POINT_PART_NAMES} <= meta.read  # really consumed
         assert set(meta) == set(schema.META_FIELDS)  # the loader hands the trainer every field
 
+
+
+def test_no_module_but_the_schema_spells_an_on_disk_name() -> None:
+    """File, member and field names are imported from the schema, never typed again as literals."""
+    names = {v for k, v in vars(schema).items() if k.isupper() and isinstance(v, str)}
+    assert {"meta.json", "points.npy", "record.json", "present_parts"} <= names
+    found = []
+    for pkg in ("pipeline", "render", "augment", "train", "workflows"):
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            if path == ROOT / "pipeline" / "core" / "schema.py":
+                continue
+            tree = ast.parse(path.read_text())
+            docs = {id(n.body[0].value) for n in ast.walk(tree)
+                    if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                    and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Constant) and id(node) not in docs and node.value in names:
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.value!r}")
+                if isinstance(node, ast.Tuple) and [getattr(e, "value", None) for e in node.elts] == list(schema.SPLITS):
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno} the split names")
+    assert found == []
