@@ -9,7 +9,6 @@ and, last, ``record.json``. Models with a record are skipped; a bad model gets a
 
 from __future__ import annotations
 
-import re
 import time
 from pathlib import Path
 
@@ -24,18 +23,12 @@ from pipeline.core.atomic import read_json, write_json
 from pipeline.core.errors import ModelError
 from pipeline.core.records import Progress, model_dir, read_record, write_failed, write_ok
 from pipeline.core.images import save_png
-
-_VIEW = re.compile(r"view_(\d+)\.png$")
-
-
-def sketch_name(view: int, variant: int) -> str:
-    return f"sketch_{view:02d}_{variant:02d}.png"
+from pipeline.core.schema import STROKES_FILE, VIEW_GLOB, sketch_name, view_index
 
 
 def list_views(render_dir: Path) -> list[tuple[int, Path]]:
     """(view index, path) of the rendered views, by index."""
-    found = [(int(m.group(1)), p) for p in Path(render_dir).glob("view_*.png")
-             if (m := _VIEW.search(p.name))]
+    found = [(i, p) for p in Path(render_dir).glob(VIEW_GLOB) if (i := view_index(p.name)) is not None]
     return sorted(found)
 
 
@@ -54,7 +47,7 @@ def load_gray(path: Path) -> np.ndarray:
 
 
 def _captured(render_dir: Path) -> list | None:
-    path = Path(render_dir) / "strokes.json"
+    path = Path(render_dir) / STROKES_FILE
     if not path.exists():
         return None
     try:
@@ -107,7 +100,7 @@ def augment_model(category: str, model_id: str, render_dir: Path, out_dir: Path,
         doc_views.append({"view": view, "variants": [
             {"variant": k, "width": round(var.width, 4), "strokes": _round(var.strokes)}
             for k, var in enumerate(variants)]})
-    write_json(Path(out_dir) / "strokes.json", {
+    write_json(Path(out_dir) / STROKES_FILE, {
         "out_size": settings.out_size, "source_size": w, "views": doc_views})
     f1s = [q["f1"] for q in quality if "f1" in q]
     return {

@@ -31,7 +31,8 @@ from pipeline.core.stage_keys import stage_key  # noqa: E402
 from pipeline.core.records import read_record  # noqa: E402
 from pipeline.prepare.line_mesh import line_mesh  # noqa: E402
 from pipeline.sources.mesh_io import load_mesh  # noqa: E402
-from pipeline.prepare.batch import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch  # noqa: E402
+from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE  # noqa: E402
+from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
 from pipeline.core.images import save_png  # noqa: E402
 from pipeline.sources.layouts import list_categories, list_models  # noqa: E402
 from render.batch import render_batch  # noqa: E402

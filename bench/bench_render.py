@@ -52,7 +52,8 @@ def car_meshes(work: Path) -> dict[str, trimesh.Trimesh]:
     """A procedural car prepared by the prepare stage: ``car`` its watertight envelope (what the
     render stage drew before it read lines.ply), ``carsrc`` its line mesh (what it draws now)."""
     try:
-        from pipeline.prepare.batch import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch
+        from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE
+        from pipeline.prepare.batch import PrepareSettings, prepare_batch
         from pipeline.sources.layouts import list_models
     except ImportError:
         return {}

@@ -19,6 +19,7 @@ import webdataset as wds
 
 from pipeline.sources.mesh_io import read_ply
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from train.data import read_png, sketch_table, to_network
 from train.fit import load_checkpoint, model_from_checkpoint
@@ -37,14 +38,14 @@ def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 
     urls = sorted(glob.glob(str(Path(dataset) / s["category"] / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
-        meta = json.loads(raw["meta.json"])
+        meta = json.loads(raw[META_MEMBER])
         name = sketch_table(raw)[0][0]
         sketch = read_png(raw[name], s["image_size"])
         x = torch.from_numpy(to_network(sketch))[None, None]
         patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
-        keep = objective.mask_for(meta.get("present_parts"))
+        keep = objective.mask_for(meta.get(PRESENT_PARTS))
         v, f = welded_mesh(patches[keep].double(), 12)
-        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s["category"] / meta["model_id"] / "mesh.ply")))
+        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s["category"] / meta["model_id"] / MESH_FILE)))
         gv, gf = read_ply(gt[0])
         big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
         images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]

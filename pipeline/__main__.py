@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from pipeline.core.schema import MANIFEST
+
 
 def _verify(args: argparse.Namespace) -> int:
     from pipeline.dataset.verify import verify_dataset
@@ -16,7 +18,7 @@ def _verify(args: argparse.Namespace) -> int:
     if problems:
         print(f"FAILED: {len(problems)} problem(s) in {args.dataset_dir}")
         return 1
-    print(f"OK: every shard in {args.dataset_dir} matches manifest.json")
+    print(f"OK: every shard in {args.dataset_dir} matches {MANIFEST}")
     return 0
 
 

@@ -25,6 +25,7 @@ from pipeline.core.stage_keys import settings_hash
 from pipeline.core.errors import ModelError
 from pipeline.core.records import model_dir, read_record, write_failed, write_ok
 from pipeline.core.images import encode_png
+from pipeline.core.schema import CAMERAS_FILE, STROKES_FILE, view_name
 from render import cameras
 from render.job import PARENT_ENV, PROGRESS_PREFIX, read_job
 from render.settings import RenderSettings
@@ -124,13 +125,13 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
         else:
             gray, strokes = _freestyle_view(scene, recorder, view, settings,
                                             scratch / f"{category}_{model_id}_{i:02d}.png")
-        write_bytes(out / f"view_{i:02d}.png", encode_png(gray))
+        write_bytes(out / view_name(i), encode_png(gray))
         strokes_per_view.append(strokes)
         view_times.append(round(time.perf_counter() - t, 4))
         view_cpu.append(round(time.process_time() - c, 4))
-    write_json(out / "cameras.json", {"image_size": settings.image_size,
+    write_json(out / CAMERAS_FILE, {"image_size": settings.image_size,
                                       "views": [v.to_json() for v in views]})
-    write_json(out / "strokes.json", {"image_size": settings.image_size, "views": strokes_per_view})
+    write_json(out / STROKES_FILE, {"image_size": settings.image_size, "views": strokes_per_view})
     return write_ok(
         out, category=category, model_id=model_id,
         mesh={"path": str(mesh_path), "n_vertices": int(len(vertices)), "n_faces": int(len(faces))},

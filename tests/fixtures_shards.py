@@ -16,6 +16,8 @@ import numpy as np
 import webdataset as wds
 
 from pipeline.core.atomic import write_json
+from pipeline.core.schema import (CAMERAS_MEMBER, MANIFEST, META_MEMBER, POINTS_MEMBER, STROKES_MEMBER, SampleMeta,
+                                  sample_key, shard_name, sketch_name)
 from pipeline.core.seeding import rng_for
 
 _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
@@ -83,37 +85,43 @@ def write_fixture_shards(
     for split, n in counts.items():
         shards = []
         for start in range(0, n, per_shard):
-            name = f"{split}-{start // per_shard:05d}.tar"
+            name = shard_name(split, start // per_shard)
             path = root / category / name
             path.parent.mkdir(parents=True, exist_ok=True)
             count = min(per_shard, n - start)
             with open(path, "wb") as f, wds.TarWriter(f, mtime=0) as sink:
                 for _ in range(count):
-                    sink.write(_sample(category, index, views, variants, size, n_points, seed))
+                    sink.write(_sample(category, split, index, views, variants, size, n_points, seed))
                     index += 1
             shards.append({"path": f"{category}/{name}", "samples": count})
         manifest["categories"][category][split] = shards
-    write_json(root / "manifest.json", manifest)
+    write_json(root / MANIFEST, manifest)
     return root
 
 
-def _sample(category: str, index: int, views: int, variants: int, size: int, n_points: int, seed: int) -> dict:
+def _sample(category: str, split: str, index: int, views: int, variants: int, size: int, n_points: int,
+            seed: int) -> dict:
     model_id = f"{index:05d}"
     rng = rng_for(seed, "fixture", category, model_id, 0, 0)
     half = rng.uniform(0.2, 1.0, size=3)
     half /= np.linalg.norm(half)  # farthest vertex at radius 1, as the prepare stage normalizes
     buf = io.BytesIO()
     np.save(buf, box_points(half, n_points, rng))
-    sample = {"__key__": f"{category}_{model_id}", "points.npy": buf.getvalue()}
+    key = sample_key(category, model_id)
+    sample = {"__key__": key, POINTS_MEMBER: buf.getvalue()}
     cams = []
     for v in range(views):
         az, el = 30.0 + 360.0 * v / views, 20.0
         proj = camera(az, el, size)
         cams.append({"azimuth_deg": az, "elevation_deg": el, "projection": proj.tolist()})
         for w in range(variants):
-            sample[f"sketch_{v:02d}_{w:02d}.png"] = _png(box_sketch(half, proj, size, 1 + w))
-    sample["cameras.json"] = json.dumps({"image_size": size, "views": cams}).encode()
-    sample["strokes.json"] = json.dumps({"out_size": size, "views": []}).encode()
-    meta = {"category": category, "model_id": model_id, "part_labels": [], "has_parts": {}}
-    sample["meta.json"] = json.dumps(meta).encode()
+            sample[sketch_name(v, w)] = _png(box_sketch(half, proj, size, 1 + w))
+    sample[CAMERAS_MEMBER] = json.dumps({"image_size": size, "views": cams}).encode()
+    sample[STROKES_MEMBER] = json.dumps({"out_size": size, "views": []}).encode()
+    # a box has no part labels: every part-dependent field is None, as for an unlabelled source
+    meta = SampleMeta(key=key, category=category, model_id=model_id, source=None, source_sha256=None,
+                      normalization={"center": [0.0, 0.0, 0.0], "scale": 1.0}, part_labels=None, present_parts=None,
+                      point_part_names=None, bodies=1, seed=seed, settings_hash="fixture", split=split,
+                      sketches=[sketch_name(v, w) for v in range(views) for w in range(variants)], points=n_points)
+    sample[META_MEMBER] = json.dumps(meta.to_json()).encode()
     return sample

@@ -21,7 +21,7 @@ from train.losses import (
 from train.geometry.intersections import count_intersecting_pairs
 from train.nn_search import nearest_distances
 from train.templates import sphere24, sphere54
-from train.templates.format import Curve, FreePoint, Patch, Template
+from train.templates.template import Curve, FreePoint, Patch, Template
 
 torch.set_num_threads(1)
 

@@ -11,7 +11,8 @@ import trimesh
 
 from pipeline.core.records import ModelRef, read_record
 from pipeline.sources.mesh_io import read_ply
-from pipeline.prepare.batch import LINE_MESH_FILE, MESH_FILE, PrepareSettings, prepare_batch
+from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE
+from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.shapes import DETACHABLE, generate
 
 FAST = PrepareSettings(resolution=3000, max_faces=6000)

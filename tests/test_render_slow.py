@@ -20,7 +20,8 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    from pipeline.prepare.batch import LINE_MESH_FILE, PrepareSettings, prepare_batch
+    from pipeline.core.schema import LINE_MESH_FILE
+    from pipeline.prepare.batch import PrepareSettings, prepare_batch
     from pipeline.shapes import CATEGORIES
     from pipeline.sources.layouts import list_models
 

@@ -35,7 +35,7 @@ def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, va
     write_npy(prep / "samples.npy", pts)
     write_json(prep / "record.json", {
         "status": "ok", "source": {"path": str(root / "src" / f"{model_id}.obj"), "sha256": "ab" * 32},
-        "normalization": {"center": [0, 0, 0], "scale": 1.0}, "part_labels": ["body", "handle"],
+        "normalization": {"center": [0, 0, 0], "scale": 1.0}, "parts": [{"label": "body"}, {"label": "handle"}],
         "bodies": 2})
     write_json(rend / "cameras.json", {"image_size": 64, "views": [{"azimuth_deg": 30.0 * v} for v in range(views)]})
     write_json(rend / "record.json", {"status": "ok"})

@@ -7,7 +7,7 @@ import pytest
 
 from train.templates.build import DATA_DIR
 from train.templates.checks import closed_manifold_problems, euler_characteristic, junction_errors, self_intersections
-from train.templates.format import JunctionPoint, load_template_file
+from train.templates.template import JunctionPoint, load_template_file
 from train.templates.from_cuboids import TemplateSettings, template_from_boxes
 from train.templates.lattice import Box, boundary_quads, build_lattice, edge_use_counts, euler_characteristic as quad_euler
 from train.templates.median import chamfer_matrix, median_index
@@ -109,7 +109,7 @@ def test_self_intersection_check_detects_crossing_patches():
     tpl = template_from_boxes(boxes, "two", TemplateSettings(snap_tol=1e-3, symmetric=False))
     assert self_intersections(tpl) == []
     from train.templates.checks import point_positions
-    from train.templates.format import FreePoint, Template
+    from train.templates.template import FreePoint, Template
 
     pos = point_positions(tpl)
     pos[pos[:, 0] > 0, 0] -= 1.2  # slide box b into box a: their patches now cross

@@ -21,7 +21,8 @@ import webdataset as wds
 
 from pipeline.dataset.build_settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
-from pipeline.dataset.shards import REQUIRED_MEMBERS, file_sha256, list_shards
+from pipeline.core.schema import REQUIRED_MEMBERS
+from pipeline.dataset.shards import file_sha256, list_shards
 from pipeline.dataset.verify import verify_dataset
 from workflows import BuildCategory, BuildDataset
 

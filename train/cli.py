@@ -7,6 +7,7 @@ import dataclasses
 import json
 import sys
 
+from pipeline.core.schema import SPLITS
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.losses.weights import LossWeights, template_weights
 
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     ev = sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split")
     ev.add_argument("--checkpoint", required=True)
     ev.add_argument("--dataset", required=True)
-    ev.add_argument("--split", default="test", choices=("train", "val", "test"))
+    ev.add_argument("--split", default="test", choices=SPLITS)
     ev.add_argument("--category", default=None, help="default: the run's category")
     ev.add_argument("--views", type=int, default=1)
     ev.add_argument("--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)")

@@ -1,7 +1,8 @@
 """Streams dataset shards into training / evaluation batches.
 
 Shards: ``<dataset>/<category>/<split>-NNNNN.tar`` (WebDataset), members ``points.npy``,
-``sketch_<view>_<variant>.png``, ``meta.json`` (+ strokes/cameras, unused here).
+``sketch_<view>_<variant>.png``, ``meta.json``, ``point_parts.npy`` (+ strokes/cameras, unused
+here); every name comes from :mod:`pipeline.core.schema`.
 
 Training streams never end: each epoch re-shuffles the shard order with a seeded generator and
 each (rank, loader worker) slot reads a disjoint part (whole shards when there are enough, else
@@ -13,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import re
 import warnings
 from pathlib import Path
 from typing import Any, Iterator
@@ -25,12 +25,9 @@ import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import POINT_PARTS_MEMBER
+from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, shard_glob, sketch_view_variant
 from pipeline.core.seeding import rng_for
 from train.augmentation import Jitter, jitter_image
-
-SPLITS = ("train", "val", "test")
-_SKETCH = re.compile(r"sketch_(\d+)_(\d+)\.png$")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,9 +43,9 @@ class DataSettings:
 def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     """The split's shard files, sorted; raises ModelError when there are none."""
     folder = Path(dataset) / category
-    urls = sorted(str(p) for p in folder.glob(f"{split}-*.tar"))
+    urls = sorted(str(p) for p in folder.glob(shard_glob(split)))
     if not urls:
-        raise ModelError(folder, f"no {split}-*.tar shards")
+        raise ModelError(folder, f"no {shard_glob(split)} shards")
     return urls
 
 
@@ -70,9 +67,9 @@ def sketch_table(raw: dict) -> dict[int, list[str]]:
     """view index -> sorted member names of its variants."""
     table: dict[int, list[str]] = {}
     for name in raw:
-        m = _SKETCH.match(name)
-        if m:
-            table.setdefault(int(m.group(1)), []).append(name)
+        vv = sketch_view_variant(name)
+        if vv is not None:
+            table.setdefault(vv[0], []).append(name)
     return {v: sorted(names) for v, names in sorted(table.items())}
 
 
@@ -81,14 +78,14 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
     "key", "meta"}."""
     key = raw.get("__key__", "?")
     try:
-        points = np.load(io.BytesIO(raw["points.npy"]), allow_pickle=False).astype(np.float32)
-        meta = json.loads(raw["meta.json"]) if "meta.json" in raw else {}
+        points = np.load(io.BytesIO(raw[POINTS_MEMBER]), allow_pickle=False).astype(np.float32)
+        meta = json.loads(raw[META_MEMBER]) if META_MEMBER in raw else {}
         part_ids = _point_parts(raw, len(points))
         table = sketch_table(raw)
     except Exception as exc:  # noqa: BLE001 - reported with the sample's name
         raise ModelError(key, f"unreadable sample: {exc}") from exc
     if points.ndim != 2 or points.shape[1] != 6 or not table:
-        raise ModelError(key, "needs points.npy (N,6) and at least one sketch")
+        raise ModelError(key, f"needs {POINTS_MEMBER} (N,6) and at least one sketch")
     views = list(table)
     if train:
         n = int(rng.integers(1, min(settings.max_views, len(views)) + 1))
@@ -121,7 +118,7 @@ def _point_parts(raw: dict, n: int) -> np.ndarray:
         return np.full(n, -1, np.int64)
     ids = np.load(io.BytesIO(raw[POINT_PARTS_MEMBER]), allow_pickle=False).astype(np.int64)
     if ids.shape != (n,):
-        raise ValueError(f"{POINT_PARTS_MEMBER} has shape {ids.shape}, points.npy has {n} points")
+        raise ValueError(f"{POINT_PARTS_MEMBER} has shape {ids.shape}, {POINTS_MEMBER} has {n} points")
     return ids
 
 

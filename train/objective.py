@@ -122,7 +122,7 @@ def _patch_point_incidence(template: Template) -> Tensor:
     points, through sub-curves to their parents and junction points to their host curves)."""
     from functools import cache
 
-    from train.templates.format import JunctionPoint
+    from train.templates.template import JunctionPoint
 
     @cache
     def point_deps(pi: int) -> frozenset[int]:

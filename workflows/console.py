@@ -24,9 +24,9 @@ from typing import TextIO
 import luigi
 
 from pipeline.dataset.build_settings import BuildSettings
-from pipeline.core.records import RECORD, model_dir
+from pipeline.core.records import model_dir
+from pipeline.core.schema import MANIFEST, RECORD, SPLITS
 from pipeline.dataset.manifest import read_manifest
-from pipeline.core.splits import SPLITS
 from workflows import steps
 from workflows.validate import BuildParameterError
 
@@ -247,7 +247,7 @@ def summary(s: BuildSettings, categories: list[str]) -> str:
             lines.append(f"  failed {name}/{f['model_id']} at {f['stage']}: {f['reason'][:160]}")
         if len(c["failed"]) > FIRST_FAILURES:
             lines.append(f"  ... and {len(c['failed']) - FIRST_FAILURES} more failures of {name} (category.json)")
-    lines.append(f"manifest: {(ds / 'manifest.json').resolve()} (checksum {m['checksum'][:16]})")
+    lines.append(f"manifest: {(ds / MANIFEST).resolve()} (checksum {m['checksum'][:16]})")
     if failed:
         lines.append(f"{failed} of {built + failed} models FAILED and are not in the dataset (reasons above)")
     return "\n".join(lines)

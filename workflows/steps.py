@@ -22,7 +22,8 @@ from pipeline.core.atomic import read_json, storage_error, write_json
 from pipeline.dataset.build_settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
 from pipeline.core.records import ModelRef, Progress, model_dir
-from pipeline.dataset.manifest import (FRAGMENT, build_manifest, category_fragment, content_checksum, read_fragment,
+from pipeline.core.schema import FRAGMENT
+from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
 from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, write_category_shards
 
@@ -119,7 +120,7 @@ def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = No
     category = lst["category"]
     ok, failed = _upstream(s, "prepare", lst, batch)
     prep = s.stage_dir("prepare")
-    from pipeline.prepare.batch import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
+    from pipeline.core.schema import LINE_MESH_FILE  # the source's surface: its sharp edges are drawn
 
     items = [(m["work_id"], model_dir(prep, category, m["work_id"]) / LINE_MESH_FILE) for m in ok]
     records: list[dict] = []

@@ -14,8 +14,7 @@ from typing import Callable, Optional
 
 from pipeline.core.atomic import read_json, write_json
 from pipeline.core.errors import ModelError
-
-RECORD = "record.json"
+from pipeline.core.schema import RECORD
 
 # progress(done, total, message): how batch functions report progress to Luigi or a terminal.
 Progress = Optional[Callable[[int, int, str], None]]
@@ -29,10 +28,6 @@ class ModelRef:
     model_id: str
     path: Path
     source: str  # "procedural", "shapenet" or "folder"
-
-    @property
-    def key(self) -> str:
-        return f"{self.category}_{self.model_id}"
 
 
 def model_dir(stage_dir: Path, category: str, model_id: str) -> Path:

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import hashlib
 
-SPLITS = ("train", "val", "test")
+from pipeline.core.schema import SPLITS
+
 DEFAULT_FRACTIONS = (0.8, 0.1, 0.1)
 
 

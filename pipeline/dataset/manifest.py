@@ -15,11 +15,9 @@ from typing import Any
 
 from pipeline import __version__
 from pipeline.core.atomic import dumps_json, read_json, write_json
-from pipeline.dataset.shards import CategoryShards
-from pipeline.core.splits import SPLITS
+from pipeline.core.schema import FRAGMENT, MANIFEST, SPLITS
+from pipeline.dataset.shards import ShardSet
 
-MANIFEST = "manifest.json"
-FRAGMENT = "category.json"
 FORMAT = 1
 
 
@@ -31,7 +29,7 @@ def content_checksum(obj: dict) -> str:
 
 def category_fragment(
     category: str,
-    result: CategoryShards,
+    result: ShardSet,
     settings: dict[str, Any],
     settings_hash: str,
     models_requested: int,

@@ -2,8 +2,8 @@
 
 A sample's key is ``<category>_<model_id>``; its members are ``points.npy``, one
 ``sketch_<view>_<variant>.png`` per view and variant, ``strokes.json``, ``cameras.json``,
-``meta.json`` and, where the source has part labels, ``point_parts.npy`` (see
-:mod:`pipeline.core.schema`). Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
+``meta.json`` and, where the source has part labels, ``point_parts.npy``. Every name and
+``meta.json`` field is defined in :mod:`pipeline.core.schema`. Tars are written with :mod:`tarfile` rather than ``webdataset.TarWriter`` so
 every header field is fixed (sorted member order, mtime 0, uid/gid 0, empty user/group names,
 mode 0o644, GNU format): the same inputs give the same bytes.
 
@@ -18,7 +18,6 @@ import dataclasses
 import hashlib
 import io
 import os
-import re
 import shutil
 import tarfile
 import tempfile
@@ -29,15 +28,15 @@ import numpy as np
 
 from pipeline.core.atomic import dumps_json, read_json
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import POINT_PART_NAMES, POINT_PARTS_MEMBER, PRESENT_PARTS, present_parts
-from pipeline.dataset.point_parts import label_points, read_obj_parts, source_obj
+from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, RECORD,
+                                  SAMPLES_FILE, SHARD_RE, SKETCH_GLOB, SPLITS, STROKES_FILE, STROKES_MEMBER, SampleMeta,
+                                  present_parts, sample_key, shard_name)
 from pipeline.core.seeding import rng_for
-from pipeline.core.splits import DEFAULT_FRACTIONS, SPLITS, split_of
+from pipeline.core.splits import DEFAULT_FRACTIONS, split_of
+from pipeline.dataset.point_parts import label_points, read_obj_parts, source_obj
 
 TAR_FORMAT = tarfile.GNU_FORMAT
 MIN_POINTS = 7000
-SHARD_RE = re.compile(r"^(train|val|test)-(\d{5})\.tar$")
-REQUIRED_MEMBERS = ("points.npy", "strokes.json", "cameras.json", "meta.json")
 _BLOCK = tarfile.BLOCKSIZE
 
 
@@ -87,11 +86,6 @@ class ShardInfo:
                 "sha256": self.sha256, "keys": list(self.keys)}
 
 
-def sample_key(category: str, model_id: str) -> str:
-    """WebDataset key; dots would split the key from the extension, so they become '_'."""
-    return f"{category}_{model_id}".replace(".", "_")
-
-
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -132,7 +126,7 @@ def _npy_bytes(array: np.ndarray) -> bytes:
 
 
 def _record(folder: Path) -> dict:
-    path = Path(folder) / "record.json"
+    path = Path(folder) / RECORD
     try:
         rec = read_json(path)
     except (OSError, ValueError) as e:
@@ -143,26 +137,9 @@ def _record(folder: Path) -> dict:
     return rec
 
 
-def _source_fields(rec: dict, portable) -> dict:
-    """Source path and sha256 from a prepare record, whatever nesting the record uses."""
-    src = rec.get("source")
-    path = sha = None
-    if isinstance(src, dict):
-        path = src.get("path")
-        sha = src.get("sha256")
-    elif isinstance(src, str):
-        path = src
-    path = path or rec.get("source_path")
-    sha = sha or rec.get("source_sha256") or rec.get("sha256")
-    return {"source": portable(path) if path else None, "source_sha256": sha}
-
-
 def _part_labels(rec: dict) -> list[str] | None:
-    for name in ("part_labels", "parts", "labels"):
-        val = rec.get(name)
-        if isinstance(val, list) and val:
-            return [p.get("label") if isinstance(p, dict) else str(p) for p in val]
-    return None
+    """The generator's part labels from a prepare record (None when the source had no sidecar)."""
+    return [p["label"] for p in rec["parts"]] if rec.get("parts") else None
 
 
 def assemble_sample(
@@ -182,16 +159,16 @@ def assemble_sample(
     _record(dirs.render_dir)
     _record(dirs.augment_dir)
     key = sample_key(category, dirs.model_id)
-    points = _load_points(dirs.prepare_dir / "samples.npy", settings.points,
+    points = _load_points(dirs.prepare_dir / SAMPLES_FILE, settings.points,
                           (seed, "shards", category, dirs.model_id))
-    members: dict[str, bytes] = {"points.npy": _npy_bytes(points)}
-    sketches = sorted(p for p in Path(dirs.augment_dir).glob("sketch_*_*.png"))
+    members: dict[str, bytes] = {POINTS_MEMBER: _npy_bytes(points)}
+    sketches = sorted(p for p in Path(dirs.augment_dir).glob(SKETCH_GLOB))
     if not sketches:
         raise ModelError(dirs.augment_dir, "no sketch_<view>_<variant>.png images")
     for p in sketches:
         members[p.name] = _read_bytes(p)
-    members["strokes.json"] = _read_bytes(dirs.augment_dir / "strokes.json")
-    members["cameras.json"] = _read_bytes(dirs.render_dir / "cameras.json")
+    members[STROKES_MEMBER] = _read_bytes(dirs.augment_dir / STROKES_FILE)
+    members[CAMERAS_MEMBER] = _read_bytes(dirs.render_dir / CAMERAS_FILE)
     labels = _part_labels(prep)
     point_names = None
     obj = source_obj(dirs.prepare_dir, prep) if labels else None
@@ -203,24 +180,26 @@ def assemble_sample(
         except (KeyError, ValueError) as e:
             raise ModelError(obj, f"cannot label surface points by part: {e}") from e
         members[POINT_PARTS_MEMBER] = _npy_bytes(ids)
-    meta = {
-        "key": key,
-        "category": category,
-        "model_id": dirs.model_id,
-        **_source_fields(prep, portable),
-        "normalization": prep.get("normalization"),
-        "part_labels": labels,
-        PRESENT_PARTS: present_parts(labels),
-        POINT_PART_NAMES: point_names,
-        "bodies": prep.get("bodies"),  # separate volumes of the prepared mesh (None: older record)
-        "seed": seed,
-        "settings_hash": settings_hash,
-        "split": split_of(category, dirs.model_id, settings.split_fractions),
-        "sketches": [p.name for p in sketches],
-        "points": int(len(points)),
-    }
-    members["meta.json"] = dumps_json(meta).encode()
-    return Sample(key=key, split=meta["split"], members=members)
+    src = prep.get("source") or {}  # {"kind", "path", "sha256"}, as prepare writes it
+    meta = SampleMeta(
+        key=key,
+        category=category,
+        model_id=dirs.model_id,
+        source=portable(src["path"]) if src.get("path") else None,
+        source_sha256=src.get("sha256"),
+        normalization=prep.get("normalization"),
+        part_labels=labels,
+        present_parts=present_parts(labels),
+        point_part_names=point_names,
+        bodies=prep.get("bodies"),
+        seed=seed,
+        settings_hash=settings_hash,
+        split=split_of(category, dirs.model_id, settings.split_fractions),
+        sketches=[p.name for p in sketches],
+        points=int(len(points)),
+    )
+    members[META_MEMBER] = dumps_json(meta.to_json()).encode()
+    return Sample(key=key, split=meta.split, members=members)
 
 
 # ---------------------------------------------------------------- tar writing / reading
@@ -285,7 +264,7 @@ def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
             close()
             writer = None
         if writer is None:
-            writer = ShardWriter(Path(out_dir) / f"{split}-{len(infos):05d}.tar")
+            writer = ShardWriter(Path(out_dir) / shard_name(split, len(infos)))
         writer.add(sample)
     if writer is not None:
         close()
@@ -324,7 +303,9 @@ def list_shards(category_dir: Path) -> list[Path]:
 # ---------------------------------------------------------------- a category's shard set
 
 @dataclasses.dataclass
-class CategoryShards:
+class ShardSet:
+    """What writing one category's shards did (the Luigi task ``CategoryShards`` runs it)."""
+
     shards: dict[str, list[ShardInfo]]  # split -> shards
     failed: list[dict]  # {"model_id", "stage", "path", "reason"}
     written: list[str]  # shard names whose bytes changed (or are new)
@@ -340,7 +321,7 @@ def write_category_shards(
     settings_hash: str,
     portable=lambda p: p,
     before_cleanup=None,
-) -> CategoryShards:
+) -> ShardSet:
     """Build the shard set of one category in a staging folder, then move it into place.
 
     Unchanged shards (same sha256) are left untouched. ``before_cleanup(result)`` runs after the
@@ -376,7 +357,7 @@ def write_category_shards(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     keep = {i.name for infos in shards.values() for i in infos}
-    result = CategoryShards(shards, sorted(failed, key=lambda f: f["model_id"]), written, [])
+    result = ShardSet(shards, sorted(failed, key=lambda f: f["model_id"]), written, [])
     if before_cleanup is not None:
         before_cleanup(result)
     for p in list_shards(category_dir):

@@ -12,22 +12,22 @@ import json
 import tarfile
 from pathlib import Path
 
-from pipeline.dataset.manifest import FRAGMENT, MANIFEST, content_checksum, read_fragment
-from pipeline.dataset.shards import REQUIRED_MEMBERS, file_sha256, iter_shard, list_shards
-from pipeline.core.splits import SPLITS
+from pipeline.core.schema import FRAGMENT, MANIFEST, META_MEMBER, REQUIRED_MEMBERS, SPLITS, sketch_view_variant
+from pipeline.dataset.manifest import content_checksum, read_fragment
+from pipeline.dataset.shards import file_sha256, iter_shard, list_shards
 
 
 def _check_sample(shard: str, key: str, members: dict[str, bytes], split: str) -> list[str]:
     problems = [f"{shard}: sample {key} lacks {m}" for m in REQUIRED_MEMBERS if m not in members]
-    if not any(m.startswith("sketch_") and m.endswith(".png") for m in members):
+    if not any(sketch_view_variant(m) for m in members):
         problems.append(f"{shard}: sample {key} has no sketch_<view>_<variant>.png")
-    if "meta.json" in members:
+    if META_MEMBER in members:
         try:
-            meta = json.loads(members["meta.json"])
+            meta = json.loads(members[META_MEMBER])
         except ValueError:
-            return problems + [f"{shard}: sample {key} has unreadable meta.json"]
+            return problems + [f"{shard}: sample {key} has unreadable {META_MEMBER}"]
         if meta.get("key") != key or meta.get("split") != split:
-            problems.append(f"{shard}: sample {key} meta.json names key {meta.get('key')!r} split {meta.get('split')!r}")
+            problems.append(f"{shard}: sample {key} {META_MEMBER} names key {meta.get('key')!r} split {meta.get('split')!r}")
     return problems
 
 

@@ -21,6 +21,7 @@ import trimesh
 from pipeline.core.atomic import StorageError, write_npy
 from pipeline.core.errors import ModelError
 from pipeline.core.records import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLES_FILE, sidecar_path
 from pipeline.prepare.line_mesh import line_mesh
 from pipeline.prepare.mesh_checks import check_input, closed_surface_problems
 from pipeline.sources.mesh_io import load_mesh, sha256_file, write_ply
@@ -30,11 +31,8 @@ from pipeline.prepare.sampling import sample_surface
 from pipeline.core.seeding import derive_seed, rng_for
 from pipeline.prepare.watertight import clean_solid, decimate, make_watertight
 
-__all__ = ["LINE_MESH_FILE", "MESH_FILE", "PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
+__all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
-MESH_FILE = "mesh.ply"
-LINE_MESH_FILE = "lines.ply"  # what the render stage draws
-SAMPLES_FILE = "samples.npy"
 METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
@@ -105,7 +103,7 @@ def pre_scale(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray | Non
 
 def _read_sidecar(path: Path) -> dict | None:
     """The procedural generator's sidecar (part labels, cuboids, defects) if the source has one."""
-    side = path.with_suffix(".json")
+    side = sidecar_path(path)
     if not side.is_file():
         return None
     try:

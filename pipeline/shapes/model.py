@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.core.atomic import write_bytes, write_json
+from pipeline.core.schema import sidecar_path
 
 
 @dataclasses.dataclass
@@ -78,10 +79,10 @@ class ProceduralModel:
         return out.getvalue()
 
     def write(self, obj_path: Path) -> None:
-        """Write the OBJ and its sidecar ``obj_path.with_suffix('.json')``, each atomically."""
+        """Write the OBJ and its sidecar (``schema.sidecar_path``), each atomically."""
         obj_path = Path(obj_path)
         write_bytes(obj_path, self.obj_text().encode())
-        write_json(obj_path.with_suffix(".json"), self.sidecar())
+        write_json(sidecar_path(obj_path), self.sidecar())
 
 
 def _round(a: np.ndarray) -> list[float]:

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from pipeline.dataset.manifest import read_manifest
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.schema import SPLITS, sketch_view_variant
+from pipeline.dataset.manifest import read_manifest
 from pipeline.dataset.shards import iter_shard
-from pipeline.core.splits import SPLITS
 
 
 def _decode_gray(data: bytes) -> np.ndarray:
@@ -34,11 +34,11 @@ def category_sheet(dataset_dir: Path, category: str, entry: dict, max_models: in
             for key, members in iter_shard(Path(dataset_dir) / category / shard["name"]):
                 if n >= max_models:
                     break
-                sketches = sorted(m for m in members if m.startswith("sketch_") and m.endswith(".png"))
+                sketches = sorted(m for m in members if sketch_view_variant(m))
                 cols = max(cols, len(sketches))
                 for j, name in enumerate(sketches):
                     images.append(_decode_gray(members[name]))
-                    view_variant = name[len("sketch_"):-len(".png")]
+                    view_variant = "{:02d}_{:02d}".format(*sketch_view_variant(name))
                     labels.append(f"{key} [{split}] {view_variant}" if j == 0 else view_variant)
                 # pad short rows so every model starts a new row
                 while len(images) % cols:

@@ -16,7 +16,8 @@ import numpy as np
 from pipeline.core.stage_keys import stage_key
 from pipeline.core.errors import ModelError
 from pipeline.sources.mesh_io import load_mesh, read_ply
-from pipeline.prepare.batch import MESH_FILE, PrepareSettings, prepare_batch
+from pipeline.core.schema import MESH_FILE
+from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.sources.layouts import list_categories, list_models
 from pipeline.core.thumbnails import render_mesh

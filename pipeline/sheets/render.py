@@ -20,6 +20,7 @@ from PIL import Image
 
 from pipeline.core.atomic import read_json
 from pipeline.core.records import read_record
+from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
 from pipeline.core.images import contact_sheet, save_png
 from render.settings import RenderSettings
 
@@ -54,8 +55,8 @@ def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
             rec = read_record(model)
             if rec is None or rec.get("status") != "ok" or shown >= per_category:
                 continue
-            views = sorted(model.glob("view_*.png"))[:max_views]
-            stroke_views = read_json(model / "strokes.json")["views"] if strokes else None
+            views = sorted(model.glob(VIEW_GLOB))[:max_views]
+            stroke_views = read_json(model / STROKES_FILE)["views"] if strokes else None
             row = []
             for i, png in enumerate(views):
                 gray = np.asarray(Image.open(png).convert("L"))
@@ -81,7 +82,7 @@ def render_procedural(work_dir: Path, categories: list[str], per_category: int, 
                       settings: RenderSettings) -> Path:
     """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
     from pipeline.core.stage_keys import stage_key
-    from pipeline.prepare.batch import LINE_MESH_FILE, PrepareSettings, prepare_batch
+    from pipeline.prepare.batch import PrepareSettings, prepare_batch
     from pipeline.sources.layouts import list_models
     from render.batch import render_batch
 

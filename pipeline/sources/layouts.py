@@ -16,7 +16,7 @@ from typing import Iterable, Iterator
 from pipeline.core.stage_keys import stage_key
 from pipeline.core.records import ModelRef
 from pipeline.sources.mesh_io import MESH_EXTENSIONS
-from pipeline.dataset.shards import sample_key
+from pipeline.core.schema import sample_key, sidecar_path
 
 # ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
 # largest gun class, and what the procedural guns imitate); pass "03948459" to read pistols.
@@ -143,7 +143,7 @@ def _write_procedural(model, obj: Path) -> None:
         tmp_obj = Path(tmp) / obj.name
         model.write(tmp_obj)
         os.replace(tmp_obj, obj)
-        os.replace(tmp_obj.with_suffix(".json"), obj.with_suffix(".json"))
+        os.replace(sidecar_path(tmp_obj), sidecar_path(obj))
 
 
 def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Iterator[ModelRef]:
@@ -156,7 +156,7 @@ def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Ite
     for index in range(count):
         model_id = f"{index:05d}"
         obj = folder / f"{model_id}.obj"
-        if not (obj.is_file() and obj.with_suffix(".json").is_file()):
+        if not (obj.is_file() and sidecar_path(obj).is_file()):
             _write_procedural(generate(category, index, seed=seed, defect_fraction=DEFECT_FRACTION), obj)
         yield ModelRef(category, model_id, obj, "procedural")
 

@@ -16,8 +16,9 @@ from train.geometry.coons import (
     coons_points,
     evaluate_patches,
 )
-from train.geometry.sampling import grid_params, samples_per_patch, sample_surface_uniform, uniform_params
-from train.geometry.triangulate import grid_triangulation, triangulate_patches, welded_mesh
+from train.geometry.grid import grid_params, grid_triangulation
+from train.geometry.sampling import samples_per_patch, sample_surface_uniform, uniform_params
+from train.geometry.triangulate import triangulate_patches, welded_mesh
 
 __all__ = [
     "PatchSamples",

@@ -1,4 +1,4 @@
-"""Parameter-domain sampling: random (s, t) from an explicit torch.Generator, regular grids, and
+"""Parameter-domain sampling: random (s, t) from an explicit torch.Generator (regular grids: grid.py) and
 area-uniform surface samples (for metrics)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from train.geometry.coons import evaluate_patches
-from train.geometry.triangulate import grid_triangulation
+from train.geometry.grid import grid_params, grid_triangulation
 
 
 def samples_per_patch(num_points: int, num_patches: int) -> int:
@@ -28,22 +28,6 @@ def uniform_params(
     """Independent uniform (s, t) per patch → ``(P, S, 2)``. Draws only from ``generator``."""
     st = torch.rand((num_patches, num_samples, 2), generator=generator, dtype=torch.float64)
     return st.to(device=device, dtype=dtype)
-
-
-def grid_params(k: int, include_boundary: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
-    """A k×k grid of (s, t), row-major with t as the row: index = i_t * k + i_s → ``(k*k, 2)``.
-
-    ``include_boundary`` puts samples on the patch edges (linspace 0..1, needs k ≥ 2); otherwise
-    cell centres (i + 0.5) / k.
-    """
-    if include_boundary:
-        if k < 2:
-            raise ValueError("a boundary grid needs k >= 2")
-        axis = torch.linspace(0.0, 1.0, k, dtype=torch.float64)
-    else:
-        axis = (torch.arange(k, dtype=torch.float64) + 0.5) / k
-    t, s = torch.meshgrid(axis, axis, indexing="ij")
-    return torch.stack([s.reshape(-1), t.reshape(-1)], dim=-1).to(dtype)
 
 
 def sample_surface_uniform(

@@ -1,4 +1,4 @@
-"""Fixed-grid triangulation of the unit square and of patches; a welded mesh for export."""
+"""Triangulation of patches over the grid of grid.py; a welded mesh for export."""
 
 from __future__ import annotations
 
@@ -8,23 +8,11 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from train.geometry.coons import coons_points
-
-
-def grid_triangulation(k: int) -> Tensor:
-    """Faces ``(2(k−1)², 3)`` over the vertices of ``grid_params(k)`` (index = i_t*k + i_s).
-
-    Counter-clockwise in (s, t), so a triangle's normal points along P_s × P_t.
-    """
-    i_t, i_s = torch.meshgrid(torch.arange(k - 1), torch.arange(k - 1), indexing="ij")
-    a = (i_t * k + i_s).reshape(-1)
-    b, c, d = a + 1, a + k + 1, a + k
-    return torch.cat([torch.stack([a, b, c], -1), torch.stack([a, c, d], -1)], 0).to(torch.int64)
+from train.geometry.grid import grid_params, grid_triangulation
 
 
 def triangulate_patches(patches: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """Images of a k×k boundary grid: vertices ``(..., P, k*k, 3)`` (differentiable), faces ``(F, 3)``."""
-    from train.geometry.sampling import grid_params  # local: sampling imports this module
-
     st = grid_params(k, dtype=patches.dtype).to(patches.device)
     return coons_points(patches, st), grid_triangulation(k).to(patches.device)
 

@@ -1,4 +1,4 @@
-"""Patch templates: the file format (format.py), built-in spheres (sphere.py), and a resolver.
+"""Patch templates: the Template model and its file format (template.py), built-in spheres (sphere.py), and a resolver.
 
 Category templates are JSON files in train/templates/data/<category>.json (built by
 train/templates/build*). ``load_template`` accepts "sphere24", "sphere54", a category name, or a
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from train.templates.format import (
+from train.templates.template import (
     Curve,
     FreePoint,
     JunctionPoint,

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from train.templates.checks import conforming_mesh, surface_components
-from train.templates.format import Template
+from train.templates.template import Template
 from train.templates.from_cuboids import TemplateSettings, template_from_boxes
 from train.templates.lattice import Box
 from train.templates.median import chamfer, sample_surface

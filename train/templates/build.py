@@ -25,7 +25,7 @@ from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
 from pipeline.core.images import save_png
 from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
-from train.templates.format import Template, save_template
+from train.templates.template import Template, save_template
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
 from train.templates.median import chamfer_matrix, median_index, sample_surface
 from train.templates.part_boxes import category_boxes

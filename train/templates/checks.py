@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from train.templates.format import JunctionPoint, Template
+from train.templates.template import JunctionPoint, Template
 
 def _active(tpl: Template, active: list[int] | None) -> list[int]:
     return tpl.active_patches() if active is None else list(active)

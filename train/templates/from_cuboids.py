@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
-from train.templates.format import Curve, FreePoint, JunctionPoint, Patch, Template
+from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Template
 from train.templates.lattice import Box, Lattice, CuboidLike, boundary_quads, build_lattice, mirrored_boxes
 from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
 

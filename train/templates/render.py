@@ -9,7 +9,7 @@ import torch
 
 from pipeline.core.thumbnails import render_mesh
 from train.geometry.triangulate import triangulate_patches
-from train.templates.format import Template
+from train.templates.template import Template
 
 
 def patch_colors(n: int) -> np.ndarray:

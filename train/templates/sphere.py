@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from train.templates.format import Curve, FreePoint, Patch, Template
+from train.templates.template import Curve, FreePoint, Patch, Template
 
 
 def _arc_handles(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Template file format: control points, curves, patches, junctions, optional parts, symmetry.
+"""The Template model and its JSON file: control points, curves, patches, junctions, optional parts, symmetry.
 
 A template is a deformable set of Coons patches that share control points. It is stored as JSON
 (UTF-8, canonical key order)::
