@@ -4,7 +4,8 @@ Reads ``view_XX.png`` from each model's render folder and vectorizes the *raster
 captured Freestyle strokes: the point is that this works on any line drawing); the captured
 ``strokes.json``, when present, only serves as ground truth for the per-view vectorization
 scores stored in the record. Writes per model ``sketch_<view>_<variant>.png``, ``strokes.json``
-and, last, ``record.json``. Models with a record are skipped; a bad model gets a failed record.
+and, last, ``record.json``. Models with a record are skipped; a bad model gets a failed record,
+a storage error fails the batch (pipeline.core.model_loop).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
 from pipeline.core.atomic import read_json, write_json
 from pipeline.core.errors import ModelError
-from pipeline.core.records import Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.core.model_loop import ModelJob, run_models
+from pipeline.core.records import Progress, read_record
 from pipeline.core.images import save_png
 from pipeline.core.schema import STROKES_FILE, VIEW_GLOB, sketch_name, view_index
 
@@ -115,22 +117,9 @@ def augment_model(category: str, model_id: str, render_dir: Path, out_dir: Path,
 
 def augment_batch(category: str, items: list[tuple[str, Path]], stage_dir: Path,
                   settings: AugmentSettings, seed: int, progress: Progress = None) -> list[dict]:
-    """Augment every (model_id, render model folder); returns their records in order."""
-    records = []
-    total = len(items)
-    for i, (model_id, render_dir) in enumerate(items):
-        folder = model_dir(Path(stage_dir), category, model_id)
-        rec = read_record(folder)
-        if rec is None:
-            try:
-                rec = write_ok(folder, **augment_model(category, model_id, Path(render_dir), folder,
-                                                       settings, seed))
-            except ModelError as e:
-                rec = write_failed(folder, e, category=category, model_id=model_id)
-            except Exception as e:  # one bad model never stops the batch; keep the cause
-                err = ModelError(render_dir, f"{type(e).__name__}: {e}")
-                rec = write_failed(folder, err, category=category, model_id=model_id)
-        records.append(rec)
-        if progress is not None:
-            progress(i + 1, total, f"augment {category}/{model_id}: {rec['status']}")
-    return records
+    """Augment every (model_id, render model folder); returns their records in order
+    (pipeline.core.model_loop: a bad model is recorded, a storage error fails the batch)."""
+    jobs = [ModelJob(category, model_id, Path(render_dir), Path(render_dir)) for model_id, render_dir in items]
+    return run_models("augment", stage_dir, jobs,
+                      lambda job, folder: augment_model(category, job.model_id, job.item, folder, settings, seed),
+                      progress)

@@ -1,7 +1,9 @@
 """render_batch: render many models in ONE Blender (bpy) subprocess, with a timeout.
 
-Models that already have a record are skipped. If the worker crashes, is killed or exceeds the
-batch timeout, every model still without a record gets a failed record naming the cause and the
+Models that already have a record are skipped. A storage or environment error in the worker
+(disk full, read-only output, bpy missing: pipeline.core.model_loop) is raised again here, with
+no record written. If the worker crashes, is killed or exceeds the batch timeout, every model
+still without a record gets a failed record naming the cause and the
 tail of the worker's stderr (``on_crash="record"``), or RenderBatchError is raised so a
 scheduler can retry the batch (``on_crash="raise"``); finished models keep their records.
 """
@@ -23,7 +25,7 @@ from pathlib import Path
 
 from pipeline.core.errors import ModelError
 from pipeline.core.records import Progress, model_dir, read_record, write_failed
-from render.job import PARENT_ENV, PROGRESS_PREFIX, write_job
+from render.job import PARENT_ENV, PROGRESS_PREFIX, fatal_from_json, write_job
 from render.settings import RenderSettings
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -69,7 +71,10 @@ def _run_worker(category: str, pending: list[tuple[str, Path]], stage_dir: Path,
         timeout = settings.batch_timeout_s(len(pending))
         stderr_path = work / "stderr.txt"
         current: list[str] = []  # the model the worker last started
-        cause = _supervise(job_path, stderr_path, timeout, progress, done0, total, current)
+        fatal: list[dict] = []  # a storage or environment error the worker reported
+        cause = _supervise(job_path, stderr_path, timeout, progress, done0, total, current, fatal)
+        if fatal:
+            raise fatal_from_json(fatal[0])  # disk full, bpy missing...: the batch fails, no record
         if cause is None:
             missing = [mid for mid, _ in pending if read_record(model_dir(stage_dir, category, mid)) is None]
             if not missing:
@@ -116,8 +121,9 @@ def _alive(pid: int) -> bool:
 
 
 def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Progress,
-               done0: int, total: int, current: list[str]) -> str | None:
-    """Run the worker; None if it exited cleanly, else a sentence saying how it died."""
+               done0: int, total: int, current: list[str], fatal: list[dict]) -> str | None:
+    """Run the worker; None if it exited cleanly, else a sentence saying how it died. A fatal
+    error the worker reported is appended to ``fatal``."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(PROJECT_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
     env.setdefault("OMP_NUM_THREADS", "1")
@@ -145,6 +151,9 @@ def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Prog
                 break
             if line.startswith(PROGRESS_PREFIX):
                 msg = json.loads(line[len(PROGRESS_PREFIX):])
+                if "fatal" in msg:
+                    fatal.append(msg["fatal"])
+                    continue
                 if msg.get("current"):
                     current.append(msg["current"])
                 if progress is not None:

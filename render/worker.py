@@ -3,8 +3,10 @@ for the Freestyle backend, none for the embree backend, render.edge_lines).
 
 For every model of the job still without a record: load its mesh, render every view of its rig,
 write view_XX.png (8-bit grayscale, black lines on white), cameras.json, strokes.json and
-record.json last. A model that can't be loaded or rendered gets a failed record; the process
-goes on with the next one. Progress goes to stdout as ``PROGRESS_PREFIX + json`` lines.
+record.json last (pipeline.core.model_loop). A model that can't be loaded or rendered gets a
+failed record; the process goes on with the next one. A storage or environment error (disk full,
+bpy missing) ends the process with FATAL_EXIT after a ``fatal`` line, which render_batch raises
+again. Progress goes to stdout as ``PROGRESS_PREFIX + json`` lines.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import json
 import os
 import sys
 import time
+import traceback
 from pathlib import Path
 from typing import Iterator
 
@@ -23,11 +26,11 @@ from PIL import Image
 from pipeline.core.atomic import write_bytes, write_json
 from pipeline.core.stage_keys import settings_hash
 from pipeline.core.errors import ModelError
-from pipeline.core.records import model_dir, read_record, write_failed, write_ok
+from pipeline.core.model_loop import FATAL_ERRORS, ModelJob, run_models
 from pipeline.core.images import encode_png
 from pipeline.core.schema import CAMERAS_FILE, STROKES_FILE, view_name
 from render import cameras
-from render.job import PARENT_ENV, PROGRESS_PREFIX, read_job
+from render.job import FATAL_EXIT, PARENT_ENV, PROGRESS_PREFIX, fatal_to_json, read_job
 from render.settings import RenderSettings
 
 
@@ -87,6 +90,12 @@ def emit(done: int, total: int, message: str, current: str | None = None) -> Non
     sys.stdout.flush()
 
 
+def emit_fatal(exc: BaseException) -> None:
+    """Tell render_batch the batch failed for a storage or environment reason (see render.job)."""
+    sys.stdout.write(PROGRESS_PREFIX + json.dumps({"fatal": fatal_to_json(exc)}) + "\n")
+    sys.stdout.flush()
+
+
 def _freestyle_view(scene, recorder, view: cameras.View, settings: RenderSettings,
                     tmp_png: Path) -> tuple[np.ndarray, list[dict]]:
     """Render one view with Freestyle: the drawing (uint8 gray) and the strokes it captured."""
@@ -103,7 +112,8 @@ def _freestyle_view(scene, recorder, view: cameras.View, settings: RenderSetting
 
 def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path, out: Path,
                  settings: RenderSettings, seed: int, scratch: Path) -> dict:
-    """Draw every view of one model; ``scene`` and ``recorder`` are None with the embree backend."""
+    """Draw every view of one model into ``out``; returns its record fields (the loop writes
+    record.json). ``scene`` and ``recorder`` are None with the embree backend."""
     t0 = time.perf_counter()
     vertices, faces = load_mesh(mesh_path)
     if scene is None:  # the "embree" backend: no Blender scene
@@ -132,8 +142,8 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
     write_json(out / CAMERAS_FILE, {"image_size": settings.image_size,
                                       "views": [v.to_json() for v in views]})
     write_json(out / STROKES_FILE, {"image_size": settings.image_size, "views": strokes_per_view})
-    return write_ok(
-        out, category=category, model_id=model_id,
+    return dict(
+        category=category, model_id=model_id,
         mesh={"path": str(mesh_path), "n_vertices": int(len(vertices)), "n_faces": int(len(faces))},
         seed=int(seed), settings_hash=settings_hash(settings), n_views=len(views),
         n_strokes=[len(s) for s in strokes_per_view],
@@ -169,25 +179,15 @@ def run_job(job_path: Path) -> int:
     items = job["items"]
     emit(0, len(items), f"{ready} in {time.perf_counter() - t0:.2f}s"
                         f" ({time.process_time():.2f}s CPU since process start)")
-    for k, item in enumerate(items):
-        model_id, mesh_path = item["model_id"], Path(item["mesh"])
-        out = model_dir(stage_dir, category, model_id)
-        if read_record(out) is not None:
-            emit(k + 1, len(items), f"{model_id} already done")
-            continue
+
+    def one(mj: ModelJob, out: Path) -> dict:
         out.mkdir(parents=True, exist_ok=True)
-        emit(k, len(items), f"{model_id} rendering", current=model_id)
-        try:
-            rec = render_model(scene, recorder, category, model_id, mesh_path, out, settings, seed, scratch)
-            msg = f"{model_id} ok ({sum(rec['n_strokes'])} strokes)"
-        except ModelError as err:
-            write_failed(out, err, category=category, model_id=model_id)
-            msg = f"{model_id} failed: {err}"
-        except Exception as exc:  # a Blender error on one model must not end the batch
-            write_failed(out, ModelError(mesh_path, f"render error: {type(exc).__name__}: {exc}"),
-                         category=category, model_id=model_id)
-            msg = f"{model_id} failed: {exc}"
-        emit(k + 1, len(items), msg)
+        return render_model(scene, recorder, category, mj.model_id, mj.path, out, settings, seed, scratch)
+
+    jobs = [ModelJob(category, item["model_id"], Path(item["mesh"])) for item in items]
+    run_models("render", stage_dir, jobs, one, emit,
+               on_start=lambda k, mj: emit(k, len(items), f"{mj.model_id} rendering", current=mj.model_id),
+               error_prefix="render error: ")
     return 0
 
 
@@ -221,7 +221,12 @@ def main(argv: list[str] | None = None) -> int:
     if len(argv) != 1:
         print("usage: python -m render.worker JOB.json", file=sys.stderr)
         return 2
-    return run_job(Path(argv[0]))
+    try:
+        return run_job(Path(argv[0]))
+    except FATAL_ERRORS as exc:  # the machine's fault: render_batch re-raises it, records nothing
+        traceback.print_exc()
+        emit_fatal(exc)
+        return FATAL_EXIT
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 
 Storage errors (disk full, permission denied, read-only filesystem) are re-raised as
 StorageError naming the file and the problem in words, so a build log says what to fix.
-``SKETCH_FAULT_KILL_AT`` is a test hook for kill/restart tests; see ``_fault_point``.
+``SKETCH_FAULT_KILL_AT`` and ``SKETCH_FAULT_ERRNO_AT`` are test hooks for kill/restart and
+storage-error tests; see ``_fault_point``.
 """
 
 from __future__ import annotations
@@ -54,9 +55,21 @@ os.umask(_UMASK)
 
 
 def _fault_point(path: Path) -> None:
-    """Test hook: ``SKETCH_FAULT_KILL_AT="<glob>:<n>"`` SIGKILLs this process group just before
-    the n-th atomic rename (in this process) of a path matching the glob, leaving the temp file
-    behind exactly as a power cut or ``kill -9`` would. Unset in normal runs: costs one lookup."""
+    """Test hooks, unset in normal runs (they cost one lookup each):
+
+    - ``SKETCH_FAULT_KILL_AT="<glob>:<n>"`` SIGKILLs this process group just before the n-th
+      atomic rename (in this process) of a path matching the glob, leaving the temp file behind
+      exactly as a power cut or ``kill -9`` would.
+    - ``SKETCH_FAULT_ERRNO_AT="<glob>:<ERRNO>"`` (e.g. ``*/view_00.png:ENOSPC``) makes every write
+      of a matching path fail with that errno, as a full disk or read-only mount would, in any
+      process (the Blender worker included).
+    """
+    failing = os.environ.get("SKETCH_FAULT_ERRNO_AT")
+    if failing:
+        pattern, _, name = failing.rpartition(":")
+        if fnmatch.fnmatch(str(path), pattern):
+            code = getattr(errno, name)
+            raise OSError(code, os.strerror(code))
     spec = os.environ.get("SKETCH_FAULT_KILL_AT")
     if not spec:
         return

@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from pipeline.core.atomic import StorageError, write_npy
+from pipeline.core.atomic import write_npy
 from pipeline.core.errors import ModelError
-from pipeline.core.records import ModelRef, Progress, model_dir, read_record, write_failed, write_ok
+from pipeline.core.model_loop import ModelJob, run_models
+from pipeline.core.records import ModelRef, Progress, write_ok
 from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLES_FILE, sidecar_path
 from pipeline.prepare.line_mesh import line_mesh
 from pipeline.prepare.mesh_checks import check_input, closed_surface_problems
@@ -126,10 +127,16 @@ def _sidecar_fields(side: dict, center: np.ndarray, scale: float) -> dict:
 
 
 def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> dict:
-    """Prepare one model into ``out_dir`` (mesh.ply, samples.npy, record.json); returns the record.
+    """Prepare one model into ``out_dir`` (its files and record.json); returns the record.
 
     Raises ModelError for bad input or a repair that fails verification (no record written).
     """
+    return write_ok(out_dir, **prepare_files(ref, out_dir, settings))
+
+
+def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> dict:
+    """Write one model's mesh.ply, lines.ply and samples.npy into ``out_dir``; returns its record
+    fields (the caller writes record.json). Raises ModelError for bad input."""
     out_dir = Path(out_dir)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
@@ -191,31 +198,15 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
     side = _read_sidecar(path)
     if side is not None:
         fields.update(_sidecar_fields(side, center, scale))
-    return write_ok(out_dir, **fields)
+    return fields
 
 
 def prepare_batch(
     refs: list[ModelRef], stage_dir: Path, settings: PrepareSettings, progress: Progress = None
 ) -> list[dict]:
-    """Prepare every model not yet done; one bad model is recorded as failed, never raised."""
-    records = []
-    total = len(refs)
-    for i, ref in enumerate(refs):
-        folder = model_dir(stage_dir, ref.category, ref.model_id)
-        rec = read_record(folder)
-        if rec is None:
-            try:
-                rec = prepare_model(ref, folder, settings)
-            except ModelError as err:
-                rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,
-                                   source={"kind": ref.source, "path": str(ref.path)})
-            except StorageError:
-                raise  # disk full / not writable is the machine's fault, not the model's: fail the batch
-            except Exception as exc:  # an unexpected bug on one model must not sink the batch
-                err = ModelError(ref.path, f"{type(exc).__name__}: {exc}")
-                rec = write_failed(folder, err, category=ref.category, model_id=ref.model_id,
-                                   source={"kind": ref.source, "path": str(ref.path)})
-        records.append(rec)
-        if progress is not None:
-            progress(i + 1, total, f"prepare {ref.category}/{ref.model_id}: {rec['status']}")
-    return records
+    """Prepare every model not yet done (pipeline.core.model_loop: a bad model is recorded as
+    failed, a storage or environment error fails the batch)."""
+    jobs = [ModelJob(r.category, r.model_id, r.path, r,
+                     failed_fields={"source": {"kind": r.source, "path": str(r.path)}}) for r in refs]
+    return run_models("prepare", stage_dir, jobs, lambda job, folder: prepare_files(job.item, folder, settings),
+                      progress)
