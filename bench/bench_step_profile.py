@@ -27,14 +27,10 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader  # noqa: E402
 from train.losses.total import TERMS  # noqa: E402
-from train.losses.weights import LossWeights, template_weights  # noqa: E402
+from train.losses.weights import only_term, template_weights  # noqa: E402
 from train.model import SketchToPatches  # noqa: E402
 from train.objective import Objective  # noqa: E402
 from train.templates import load_template  # noqa: E402
-
-
-def _only(name: str, weights: LossWeights) -> LossWeights:
-    return LossWeights(**{t: (getattr(weights, t) if t == name else 0.0) for t in TERMS})
 
 
 def profile(dataset: str, category: str, template: str, steps: int, batch: int, views: int, noise: float) -> dict[str, float]:
@@ -64,7 +60,7 @@ def profile(dataset: str, category: str, template: str, steps: int, batch: int, 
         for name in TERMS:
             if not getattr(weights, name):
                 continue
-            terms = objective.batch_terms(out, b, st, _only(name, weights))
+            terms = objective.batch_terms(out, b, st, only_term(name, weights))
             (g,) = torch.autograd.grad(getattr(weights, name) * terms[name].mean(), out, allow_unused=True)
             grad += 0 if g is None else g
             t = tick(f"loss: {name} (fwd+bwd)", t)

@@ -13,11 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.core.seeding import rng_for
+from render.rigs import RIGS
 from render.settings import RenderSettings
-
-# (azimuth, elevation) of the fixed rig; the top view is looked at from +y.
-FRONT_SIDE_TOP = ((0.0, 0.0), (90.0, 0.0), (0.0, 90.0))
 
 
 @dataclass(frozen=True)
@@ -92,15 +89,9 @@ def make_view(settings: RenderSettings, azimuth_deg: float, elevation_deg: float
 
 
 def rig(settings: RenderSettings, seed: int, category: str, model_id: str) -> list[View]:
-    """The views of one model: seeded by (seed, "render", category, model_id) only."""
-    if settings.rig == "front_side_top":
-        return [make_view(settings, az, el) for az, el in FRONT_SIDE_TOP]
-    rng = rng_for(seed, "render", category, model_id)
-    lo, hi = settings.elevation_range
-    az = rng.uniform(0.0, 360.0, settings.views)
-    el = rng.uniform(lo, hi, settings.views)
-    # Round so the values survive a JSON round trip unchanged (same floats in Blender and on disk).
-    return [make_view(settings, round(float(a), 6), round(float(e), 6)) for a, e in zip(az, el)]
+    """The views of one model from its rig (``render.rigs``): seeded by (seed, "render",
+    category, model_id) only."""
+    return [make_view(settings, az, el) for az, el in RIGS[settings.rig](settings, seed, category, model_id)]
 
 
 def project(projection: np.ndarray, points: np.ndarray) -> np.ndarray:

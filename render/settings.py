@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-RIGS = ("random", "front_side_top")
+from render.rigs import RIGS
+
 BACKENDS = ("freestyle", "embree")
 # Freestyle edge types a lineset can select (names of its ``select_<type>`` flags).
 EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour", "suggestive_contour",
@@ -16,8 +17,9 @@ EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour", "
 class RenderSettings:
     """How each prepared (unit-radius, origin-centred) mesh is drawn.
 
-    rig "random": ``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly
-    from ``elevation_range``; rig "front_side_top": three fixed cameras (``views`` is ignored).
+    ``rig`` names a camera rig of ``render.rigs``: "random" places ``views`` cameras at seeded
+    azimuths over 360° and elevations drawn uniformly from ``elevation_range``; "front_side_top"
+    three fixed cameras (``views`` is ignored).
     """
 
     backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
@@ -46,7 +48,7 @@ class RenderSettings:
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.rig not in RIGS:
-            raise ValueError(f"rig must be one of {RIGS}, got {self.rig!r}")
+            raise ValueError(f"rig must be one of {tuple(RIGS)}, got {self.rig!r}")
         if self.image_size < 8 or self.views < 1:
             raise ValueError("image_size must be >= 8 and views >= 1")
         unknown = set(self.edge_types) - set(EDGE_TYPES)

@@ -9,9 +9,7 @@ import sys
 
 from pipeline.core.schema import SPLITS
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
-from train.losses.weights import LossWeights, template_weights
-
-_ABLATE = ("normal", "flat", "collision", "template_normal", "symmetry")
+from train.losses.weights import LossWeights, add_weight_flags, weights_from_flags
 
 
 def _fit_args(p: argparse.ArgumentParser) -> None:
@@ -31,11 +29,7 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-every", type=int, default=10)
     p.add_argument("--val-every", type=int, default=0, help="validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
     p.add_argument("--device", default=None, help="default: cuda when present, else cpu")
-    for f in dataclasses.fields(LossWeights):
-        p.add_argument(f"--w-{f.name.replace('_', '-')}", type=float, default=None,
-                       help=f"loss weight (paper: {f.default}; template_normal and symmetry default to the template file's)")
-    for name in _ABLATE:
-        p.add_argument(f"--no-{name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {name} = 0")
+    add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
 
 
@@ -43,12 +37,7 @@ def _weights(a: argparse.Namespace) -> LossWeights:
     """Paper weights, then the template file's regularizers, then what the command line sets."""
     from train.templates import load_template
 
-    vals = {f.name: getattr(a, f"w_{f.name}") for f in dataclasses.fields(LossWeights)}
-    vals = {k: v for k, v in vals.items() if v is not None}
-    for name in _ABLATE:
-        if getattr(a, f"no_{name}"):
-            vals[name] = 0.0
-    return template_weights(load_template(a.template).regularizers, vals)
+    return weights_from_flags(a, load_template(a.template).regularizers)
 
 
 def _parts(items: list[str]) -> dict[str, bool]:

@@ -29,7 +29,7 @@ from pipeline.core.seeding import derive_seed
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.losses.total import TERMS, weighted_sum
-from train.losses.weights import LossWeights
+from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches
 from train.objective import Objective
 from train.templates import Template, load_template
@@ -100,7 +100,7 @@ def validation_chamfer(model: SketchToPatches, loader, objective: Objective, dev
     was_training = model.training
     model.eval()
     total, count = 0.0, 0
-    weights = LossWeights(normal=0.0, flat=0.0, collision=0.0, template_normal=0.0, symmetry=0.0)
+    weights = only_term("chamfer")
     st = objective.sample_st(None)
     for batch in loader:
         params = model(batch["images"].to(device), batch["view_mask"].to(device))

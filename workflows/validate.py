@@ -51,14 +51,14 @@ def check_fraction(value: float) -> None:
 def check_categories(s: BuildSettings, categories: list[str]) -> None:
     """Every name is a plain folder name the source offers (a name such as '..' or 'a/b' would
     write outside the dataset folder)."""
-    from pipeline.sources.layouts import EXTRA_SYNSETS, SHAPENET_SYNSETS, detect_layout, list_categories
+    from pipeline.sources.layouts import layout_of
 
     for name in categories:
         if name in ("", ".", "..") or "/" in name or "\\" in name or name.startswith((".", "_")):
             raise BuildParameterError(f"--categories: {name!r} is not a category name")
-    offered = list_categories(s.source)
-    also = set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values()) \
-        if detect_layout(s.source) == "shapenet" else set()
+    layout = layout_of(s.source)
+    offered = layout.categories(s.source)
+    also = layout.also_accepts(s.source)
     unknown = [c for c in categories if c not in offered and c not in also]
     if unknown:
         raise BuildParameterError(

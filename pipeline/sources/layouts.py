@@ -1,5 +1,10 @@
 """Where source meshes come from: procedural shapes, ShapeNet Core v2, or a plain folder tree.
 
+Each layout is one ``Layout`` entry in ``LAYOUTS`` (how to recognise a source of it, list its
+categories, and stream its models); ``detect_layout``, ``list_categories`` and ``iter_models``
+only look the layout up. A new layout is one ``register_layout(Layout(...))`` call at the end of
+this file.
+
 Directory sources are listed by walking directories (names only, in sorted order) and stopping
 at ``limit``; no mesh is opened here, so a 13k-model ShapeNet tree lists in well under a second.
 """
@@ -10,12 +15,13 @@ import itertools
 import os
 import re
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 from pipeline.core.stage_keys import stage_key
 from pipeline.core.records import ModelRef
-from pipeline.sources.mesh_io import MESH_EXTENSIONS
+from pipeline.sources.mesh_io import mesh_extensions
 from pipeline.core.schema import sample_key, sidecar_path
 
 # ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
@@ -48,31 +54,56 @@ def _sorted_entries(folder: Path) -> list[os.DirEntry]:
         return sorted(it, key=lambda e: e.name)
 
 
+@dataclass(frozen=True)
+class Layout:
+    """One source layout. ``detect(source)`` says whether a source string is of this layout
+    (layouts are tried in registration order, the ``catch_all`` one last); ``categories(source)``
+    lists its category names, sorted; ``models(source, category, seed, work_dir, count)`` streams
+    a category's ModelRefs in a fixed order (``count``: how many a generating layout makes, None
+    for its default; a file layout ignores it). ``also_accepts(source)`` names categories that are
+    valid to ask for without being listed (ShapeNet synset ids, pistols)."""
+
+    name: str
+    detect: Callable[[str], bool]
+    categories: Callable[[str], list[str]]
+    models: Callable[[str, str, int, Path | None, int | None], Iterator[ModelRef]]
+    also_accepts: Callable[[str], set[str]] = field(default=lambda source: set())
+    catch_all: bool = False
+
+
+LAYOUTS: dict[str, Layout] = {}
+
+
+def register_layout(layout: Layout) -> Layout:
+    """Add a layout (its name must be new); every function of this module then knows it."""
+    if layout.name in LAYOUTS:
+        raise ValueError(f"source layout {layout.name!r} is already registered")
+    LAYOUTS[layout.name] = layout
+    return layout
+
+
+def layout_of(source: str | Path) -> Layout:
+    """The registered layout a source is (a directory no other layout claims is a "folder")."""
+    ordered = sorted(LAYOUTS.values(), key=lambda lay: lay.catch_all)  # stable: registration order
+    for layout in ordered:
+        if layout.detect(str(source)):
+            return layout
+    raise FileNotFoundError(f"source {source!r} is neither 'procedural' nor a directory")
+
+
 def detect_layout(source: str | Path) -> str:
-    """"procedural", "shapenet" (synset-id folders) or "folder" (<root>/<category>/*.ext)."""
-    if str(source) == "procedural":
-        return "procedural"
-    root = Path(source)
-    if not root.is_dir():
-        raise FileNotFoundError(f"source {source!r} is neither 'procedural' nor a directory")
-    names = [e.name for e in _sorted_entries(root) if e.is_dir()]
-    if any(_SYNSET_RE.match(n) for n in names):
-        return "shapenet"
-    return "folder"
+    """The name of the source's layout: "procedural", "shapenet" (synset-id folders), "folder"
+    (<root>/<category>/*.ext) or one registered since."""
+    return layout_of(source).name
 
 
 def list_categories(source: str) -> list[str]:
     """Category names a source offers, sorted (for ShapeNet: those of the 8 synsets present)."""
-    layout = detect_layout(source)
-    if layout == "procedural":
-        from pipeline.shapes import CATEGORIES
+    return layout_of(source).categories(str(source))
 
-        return sorted(CATEGORIES)
-    root = Path(source)
-    dirs = [e.name for e in _sorted_entries(root) if e.is_dir()]
-    if layout == "shapenet":
-        return sorted(SHAPENET_SYNSETS[d] for d in dirs if d in SHAPENET_SYNSETS)
-    return [d for d in dirs if not d.startswith(".")]
+
+def _subdirs(source: str) -> list[str]:
+    return [e.name for e in _sorted_entries(Path(source)) if e.is_dir()]
 
 
 def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
@@ -122,9 +153,10 @@ def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
     folder = root / category
     if not folder.is_dir():
         return
+    extensions = mesh_extensions()
     files = [
         e for e in _sorted_entries(folder)
-        if not e.name.startswith(".") and Path(e.name).suffix.lower() in MESH_EXTENSIONS
+        if not e.name.startswith(".") and Path(e.name).suffix.lower() in extensions
     ]
     yield from unique_ids(ModelRef(category, Path(e.name).stem, Path(e.path), "folder") for e in files)
 
@@ -164,17 +196,39 @@ def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Ite
 def iter_models(source: str, category: str, seed: int = 0, work_dir: Path | None = None,
                 count: int | None = None) -> Iterator[ModelRef]:
     """Stream the models of one category of a source, in deterministic order."""
-    layout = detect_layout(source)
-    if layout == "procedural":
-        if work_dir is None:
-            raise ValueError("the procedural source needs a work_dir to write its meshes to")
-        return iter_procedural(category, DEFAULT_PROCEDURAL_COUNT if count is None else count, seed, work_dir)
-    if layout == "shapenet":
-        return iter_shapenet(Path(source), category)
-    return iter_folder(Path(source), category)
+    return layout_of(source).models(str(source), category, seed, work_dir, count)
 
 
 def list_models(source: str, category: str, limit: int | None, seed: int, work_dir: Path) -> list[ModelRef]:
     """The first ``limit`` models (all if None) of a category, sorted and deterministic."""
     it = iter_models(source, category, seed=seed, work_dir=work_dir, count=limit)
     return list(it if limit is None else itertools.islice(it, limit))
+
+
+def _procedural_models(source: str, category: str, seed: int, work_dir: Path | None,
+                       count: int | None) -> Iterator[ModelRef]:
+    if work_dir is None:
+        raise ValueError("the procedural source needs a work_dir to write its meshes to")
+    return iter_procedural(category, DEFAULT_PROCEDURAL_COUNT if count is None else count, seed, work_dir)
+
+
+def _procedural_categories(source: str) -> list[str]:
+    from pipeline.shapes import CATEGORIES
+
+    return sorted(CATEGORIES)
+
+
+register_layout(Layout(
+    "procedural", detect=lambda source: source == "procedural", categories=_procedural_categories,
+    models=_procedural_models))
+register_layout(Layout(
+    "shapenet",
+    detect=lambda source: Path(source).is_dir() and any(_SYNSET_RE.match(n) for n in _subdirs(source)),
+    categories=lambda source: sorted(SHAPENET_SYNSETS[d] for d in _subdirs(source) if d in SHAPENET_SYNSETS),
+    models=lambda source, category, seed, work_dir, count: iter_shapenet(Path(source), category),
+    also_accepts=lambda source: set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values())))
+register_layout(Layout(
+    "folder", detect=lambda source: Path(source).is_dir(),
+    categories=lambda source: [d for d in _subdirs(source) if not d.startswith(".")],
+    models=lambda source, category, seed, work_dir, count: iter_folder(Path(source), category),
+    catch_all=True))

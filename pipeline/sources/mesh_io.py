@@ -3,6 +3,10 @@
 Loading turns any supported file (OBJ, OFF, PLY, STL, GLB/GLTF) into one triangle soup (float64
 vertices, int64 faces), flattening scene graphs with their transforms. Every failure becomes a
 ModelError naming the file, so a batch can record it and move on.
+
+Each format is one ``MeshFormat`` entry in ``FORMATS`` (its extensions, how its first bytes
+look, its integrity checks, its loader); listing, sniffing, checking and loading only look the
+entry up. A new format is one ``register_format(MeshFormat(...))`` call at the end of this file.
 """
 
 from __future__ import annotations
@@ -12,7 +16,9 @@ import io
 import os
 import re
 import stat
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import trimesh
@@ -20,7 +26,6 @@ import trimesh
 from pipeline.core.atomic import write_bytes
 from pipeline.core.errors import ModelError
 
-MESH_EXTENSIONS = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
 HEAD_BYTES = 4096
 _DENIED = "permission denied (check the owner and mode of the file and its folders)"
 
@@ -56,22 +61,58 @@ def _file_kind(mode: int) -> str:
     return "not a regular file"
 
 
+@dataclass(frozen=True)
+class MeshFormat:
+    """One mesh file format.
+
+    ``name`` is how messages call it (upper-cased) and what ``sniff_format`` returns;
+    ``extensions`` (lower case, with the dot) are the file names it claims. ``sniff(head, size)``
+    says whether the first ``HEAD_BYTES`` bytes of a file of ``size`` bytes are this format.
+    ``accepts``: sniffed formats a file with this extension may hold (default: this one);
+    ``unsniffed_ok(head)``: whether content no format recognises is still worth parsing (OBJ has
+    no magic). ``check(path, head, size, found)`` raises ModelError for a truncated or corrupt
+    file before it is parsed (``found``: what ``sniff_format`` said). ``load(path, head)`` returns
+    (vertices, faces) or raises; any exception becomes a ModelError naming the file.
+    ``sniff_last``: tried after every other format's sniff (a loose test such as OBJ's)."""
+
+    name: str
+    extensions: tuple[str, ...]
+    sniff: Callable[[bytes, int], bool]
+    load: Callable[[Path, bytes], tuple[np.ndarray, np.ndarray]]
+    check: Callable[[Path, bytes, int, str | None], None] | None = None
+    accepts: tuple[str, ...] = ()
+    unsniffed_ok: Callable[[bytes], bool] = lambda head: False
+    sniff_last: bool = False
+
+
+FORMATS: dict[str, MeshFormat] = {}
+
+
+def register_format(fmt: MeshFormat) -> MeshFormat:
+    """Add a format (name and extensions must be new); listing and loading then know it."""
+    taken = {e for f in FORMATS.values() for e in f.extensions}
+    if fmt.name in FORMATS or taken & set(fmt.extensions):
+        raise ValueError(f"mesh format {fmt.name!r} or one of its extensions {fmt.extensions} is already registered")
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def mesh_extensions() -> tuple[str, ...]:
+    """Every extension (lower case, with the dot) of a registered format."""
+    return tuple(e for f in FORMATS.values() for e in f.extensions)
+
+
+def format_for(path: Path) -> MeshFormat | None:
+    """The registered format a file name's extension (any case) claims, or None."""
+    ext = path.suffix.lower()
+    return next((f for f in FORMATS.values() if ext in f.extensions), None)
+
+
 def sniff_format(head: bytes, size: int) -> str | None:
-    """The mesh format (as an extension) the file's first bytes show, or None if none."""
-    if head.startswith(b"ply"):
-        return ".ply"
-    if head.startswith(b"glTF"):
-        return ".glb"
-    if head.split(None, 1)[:1] in ([b"OFF"], [b"COFF"], [b"NOFF"]):
-        return ".off"
-    if head.lstrip().lower().startswith(b"solid") and b"facet" in head.lower():
-        return ".stl"
-    if size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size:
-        return ".stl"  # binary STL: the size matches the triangle count exactly
-    if head.lstrip().startswith(b"{") and b'"asset"' in head:
-        return ".gltf"  # glTF JSON (every glTF file has an "asset" object)
-    if b"\0" not in head and _OBJ_LINE.search(head):
-        return ".obj"
+    """The name of the mesh format the file's first bytes show, or None if none."""
+    for fmt in sorted(FORMATS.values(), key=lambda f: f.sniff_last):  # stable: registration order
+        if fmt.sniff(head, size):
+            return fmt.name
     return None
 
 
@@ -91,37 +132,56 @@ def _ply_min_bytes(header: str) -> int:
     return total
 
 
-def check_container(path: Path, head: bytes, size: int) -> None:
-    """Raise ModelError if the bytes are not a mesh, are a mesh of another format than the
-    extension says, or are shorter than their own header declares (a truncated file)."""
+def check_container(path: Path, head: bytes, size: int) -> MeshFormat:
+    """The file's format, after raising ModelError if the bytes are not a mesh, are a mesh of
+    another format than the extension says, or fail the format's own checks (truncated files)."""
     ext = path.suffix.lower()
+    fmt = format_for(path)
+    if fmt is None:
+        raise ModelError(path, f"unreadable: unsupported extension {path.suffix!r}")
     for magic, what in _NOT_MESH_MAGIC.items():
         if head.startswith(magic):
             raise ModelError(path, f"not a mesh: the file is {what}")
     found = sniff_format(head, size)
-    family = (".glb", ".gltf") if ext == ".gltf" else (ext,)
-    if found is not None and found not in family:
-        raise ModelError(path, f"wrong extension: named {ext} but the content is {found[1:].upper()} data")
-    binary_stl = ext == ".stl" and not head.lstrip().lower().startswith(b"solid")
-    if found is None and ext != ".obj" and not binary_stl:
+    if found is not None and found not in (fmt.accepts or (fmt.name,)):
+        raise ModelError(path, f"wrong extension: named {ext} but the content is {found.upper()} data")
+    if found is None and not fmt.unsniffed_ok(head):
         kind = "text" if b"\0" not in head else "binary data"
         raise ModelError(path, f"not a mesh: {kind} in no {ext[1:].upper()} layout")
-    if binary_stl:
-        n = int.from_bytes(head[80:84], "little") if size >= 84 else 0
-        if size < 84 or size < 84 + 50 * n:
-            raise ModelError(path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) "
-                                   f"but the file has {size} bytes")
-    if found == ".ply":
-        end = head.find(b"end_header")
-        if end < 0:
-            raise ModelError(path, "truncated: PLY header has no end_header")
-        header = head[:end].decode("ascii", "replace")
-        body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
-        need = _ply_min_bytes(header) if "binary" in header else 0
-        if size - body_start < need:
-            raise ModelError(path, f"truncated: PLY header declares at least {need} bytes "
-                                   f"of data but the file has {size - body_start}")
-    if found == ".glb" and size >= 12 and size < (declared := int.from_bytes(head[8:12], "little")):
+    if fmt.check is not None:
+        fmt.check(path, head, size, found)
+    return fmt
+
+
+def _is_ascii_stl(head: bytes) -> bool:
+    return head.lstrip().lower().startswith(b"solid")
+
+
+def _check_stl(path: Path, head: bytes, size: int, found: str | None) -> None:
+    if _is_ascii_stl(head):
+        return
+    n = int.from_bytes(head[80:84], "little") if size >= 84 else 0
+    if size < 84 or size < 84 + 50 * n:
+        raise ModelError(path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) "
+                               f"but the file has {size} bytes")
+
+
+def _check_ply(path: Path, head: bytes, size: int, found: str | None) -> None:
+    end = head.find(b"end_header")
+    if end < 0:
+        raise ModelError(path, "truncated: PLY header has no end_header")
+    header = head[:end].decode("ascii", "replace")
+    body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
+    need = _ply_min_bytes(header) if "binary" in header else 0
+    if size - body_start < need:
+        raise ModelError(path, f"truncated: PLY header declares at least {need} bytes "
+                               f"of data but the file has {size - body_start}")
+    if b"format ascii" in head:
+        _check_ascii_ply_body(path)
+
+
+def _check_glb(path: Path, head: bytes, size: int, found: str | None) -> None:
+    if found == "glb" and size >= 12 and size < (declared := int.from_bytes(head[8:12], "little")):
         raise ModelError(path, f"truncated: GLB header declares {declared} bytes but the file has {size}")
 
 
@@ -137,39 +197,42 @@ def _data_lines(text: str) -> list[list[str]]:
     return [w for w in (line.split("#", 1)[0].split() for line in text.splitlines()) if w]
 
 
-def check_text_mesh(path: Path, data: bytes) -> None:
-    """Whole-file checks of text meshes the parsers get wrong: OBJ face indices of 0 (OBJ counts
-    from 1; a 0 silently becomes the last vertex), OFF counts that disagree with the data, and
-    ASCII PLY bodies shorter than their header declares."""
-    ext = path.suffix.lower()
-    if ext == ".obj":  # searched as bytes: an OBJ can be large, no decoded copy
-        m = _OBJ_ZERO.search(data)
-        if m is not None:
-            line = data.count(b"\n", 0, m.start()) + 1
-            raise ModelError(path, f"corrupt OBJ: face index 0 on line {line} (OBJ indices start at 1)")
-        return
-    text = data.decode("utf-8", "replace").lstrip("\ufeff")
-    if ext == ".off":
-        lines = _data_lines(text)
-        words = lines[0][1:] if lines else []
-        body = lines[1:]
-        if not words and body:  # counts on their own line after "OFF"
-            words, body = body[0], body[1:]
-        try:
-            nv, nf = int(words[0]), int(words[1])
-        except (IndexError, ValueError):
-            raise ModelError(path, "corrupt OFF: no vertex and face counts after the OFF line") from None
-        if len(body) != nv + nf:
-            what = "truncated or wrong OFF header counts" if len(body) < nv + nf else "wrong OFF header counts"
-            raise ModelError(path, f"{what}: the header declares {nv} vertices and {nf} faces "
-                                   f"({nv + nf} lines) but the file has {len(body)} data lines")
-    elif text.startswith("ply"):
-        header, _, body = text.partition("end_header")
-        counts = [int(w[2]) for w in _data_lines(header) if w[:1] == ["element"] and len(w) >= 3 and w[2].isdigit()]
-        rows = len(_data_lines(body))
-        if rows < sum(counts):
-            raise ModelError(path, f"truncated: ASCII PLY header declares {sum(counts)} data lines "
-                                   f"but the file has {rows}")
+# Whole-file checks of text meshes the parsers get wrong (each format's ``check`` calls its own).
+
+def _check_obj(path: Path, head: bytes, size: int, found: str | None) -> None:
+    """OBJ face indices of 0: OBJ counts from 1, and a 0 silently becomes the last vertex."""
+    data = _read_all(path)  # searched as bytes: an OBJ can be large, no decoded copy
+    m = _OBJ_ZERO.search(data)
+    if m is not None:
+        line = data.count(b"\n", 0, m.start()) + 1
+        raise ModelError(path, f"corrupt OBJ: face index 0 on line {line} (OBJ indices start at 1)")
+
+
+def _check_off(path: Path, head: bytes, size: int, found: str | None) -> None:
+    """OFF counts that disagree with the data."""
+    lines = _data_lines(_read_all(path).decode("utf-8", "replace").lstrip("\ufeff"))
+    words = lines[0][1:] if lines else []
+    body = lines[1:]
+    if not words and body:  # counts on their own line after "OFF"
+        words, body = body[0], body[1:]
+    try:
+        nv, nf = int(words[0]), int(words[1])
+    except (IndexError, ValueError):
+        raise ModelError(path, "corrupt OFF: no vertex and face counts after the OFF line") from None
+    if len(body) != nv + nf:
+        what = "truncated or wrong OFF header counts" if len(body) < nv + nf else "wrong OFF header counts"
+        raise ModelError(path, f"{what}: the header declares {nv} vertices and {nf} faces "
+                               f"({nv + nf} lines) but the file has {len(body)} data lines")
+
+
+def _check_ascii_ply_body(path: Path) -> None:
+    """ASCII PLY bodies shorter than their header declares."""
+    header, _, body = _read_all(path).decode("utf-8", "replace").partition("end_header")
+    counts = [int(w[2]) for w in _data_lines(header) if w[:1] == ["element"] and len(w) >= 3 and w[2].isdigit()]
+    rows = len(_data_lines(body))
+    if rows < sum(counts):
+        raise ModelError(path, f"truncated: ASCII PLY header declares {sum(counts)} data lines "
+                               f"but the file has {rows}")
 
 
 def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +254,7 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
         raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):
         raise ModelError(path, f"unreadable: not a regular file but {_file_kind(st.st_mode)}")
-    if path.suffix.lower() not in MESH_EXTENSIONS:
+    if format_for(path) is None:
         raise ModelError(path, f"unreadable: unsupported extension {path.suffix!r}")
     size = st.st_size
     if size == 0:
@@ -205,28 +268,17 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
         raise ModelError(path, f"unreadable: {_DENIED}") from None
     except OSError as exc:
         raise ModelError(path, f"unreadable: {exc.strerror or exc}") from None
-    check_container(path, head, size)
-    bom = head.startswith(_BOM)
-    if path.suffix.lower() in (".obj", ".off") or (head.startswith(b"ply") and b"format ascii" in head):
-        check_text_mesh(path, _read_all(path))
+    fmt = check_container(path, head, size)
     try:
-        # force="mesh" flattens scenes (GLB, multi-object OBJ) applying node transforms;
-        # process=False keeps the file's vertices untouched (watertighting repairs them anyway).
-        if bom:  # a UTF-8 byte order mark (Windows editors) would hide the first line from the parser
-            loaded = trimesh.load(io.BytesIO(_read_all(path)[len(_BOM):]), file_type=path.suffix.lower()[1:],
-                                  force="mesh", process=False,
-                                  resolver=trimesh.resolvers.FilePathResolver(str(path)))
-        else:
-            loaded = trimesh.load(str(path), force="mesh", process=False)
+        vertices, faces = fmt.load(path, head)
+    except ModelError:
+        raise
     except IndexError as exc:  # OBJ faces naming vertices the file doesn't have
         raise ModelError(path, f"unreadable: face indices out of range (truncated or corrupt file?): {exc}") from exc
     except Exception as exc:  # parsers raise anything from ValueError to struct.error
         raise ModelError(path, f"unreadable: {type(exc).__name__}: {exc}") from exc
-    if not isinstance(loaded, trimesh.Trimesh):
-        # An empty scene (nothing parsable in the file) comes back as a Scene or a point cloud.
-        raise ModelError(path, f"empty mesh: no triangles found (got {type(loaded).__name__})")
-    vertices = np.asarray(loaded.vertices, dtype=np.float64)
-    faces = np.asarray(loaded.faces, dtype=np.int64)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or len(faces) == 0 or len(vertices) == 0:
         raise ModelError(path, "empty mesh: no faces")
     if faces.shape[1] != 3:
@@ -234,6 +286,22 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ModelError(path, "unreadable: face indices out of range (truncated or corrupt file?)")
     return vertices, faces
+
+
+def _trimesh_load(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Any format trimesh reads: force="mesh" flattens scenes (GLB, multi-object OBJ) applying
+    node transforms; process=False keeps the file's vertices untouched (watertighting repairs
+    them anyway)."""
+    if head.startswith(_BOM):  # a UTF-8 byte order mark (Windows editors) would hide the first line from the parser
+        loaded = trimesh.load(io.BytesIO(_read_all(path)[len(_BOM):]), file_type=path.suffix.lower()[1:],
+                              force="mesh", process=False,
+                              resolver=trimesh.resolvers.FilePathResolver(str(path)))
+    else:
+        loaded = trimesh.load(str(path), force="mesh", process=False)
+    if not isinstance(loaded, trimesh.Trimesh):
+        # An empty scene (nothing parsable in the file) comes back as a Scene or a point cloud.
+        raise ModelError(path, f"empty mesh: no triangles found (got {type(loaded).__name__})")
+    return loaded.vertices, loaded.faces
 
 
 def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
@@ -255,3 +323,24 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of a PLY written by write_ply, exactly as stored (no merging)."""
     mesh = trimesh.load(str(path), force="mesh", process=False)
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+
+
+# Sniff order matters where tests overlap: registration order, OBJ's loose line test last.
+register_format(MeshFormat("ply", (".ply",), lambda head, size: head.startswith(b"ply"), _trimesh_load, _check_ply))
+register_format(MeshFormat("glb", (".glb",), lambda head, size: head.startswith(b"glTF"), _trimesh_load, _check_glb))
+register_format(MeshFormat(
+    "off", (".off",), lambda head, size: head.split(None, 1)[:1] in ([b"OFF"], [b"COFF"], [b"NOFF"]),
+    _trimesh_load, _check_off))
+register_format(MeshFormat(
+    "stl", (".stl",),
+    # ASCII: "solid" ... "facet"; binary: the size matches the triangle count exactly
+    lambda head, size: (_is_ascii_stl(head) and b"facet" in head.lower())
+    or (size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size),
+    _trimesh_load, _check_stl, unsniffed_ok=lambda head: not _is_ascii_stl(head)))
+register_format(MeshFormat(
+    "gltf", (".gltf",),
+    lambda head, size: head.lstrip().startswith(b"{") and b'"asset"' in head,  # every glTF has an "asset"
+    _trimesh_load, _check_glb, accepts=("glb", "gltf")))
+register_format(MeshFormat(
+    "obj", (".obj",), lambda head, size: b"\0" not in head and _OBJ_LINE.search(head) is not None,
+    _trimesh_load, _check_obj, unsniffed_ok=lambda head: True, sniff_last=True))

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from train.geometry.coons import evaluate_patches
-from train.losses.chamfer import Groups, chamfer_loss, match_points, normal_alignment_loss
-from train.losses.collision import CollisionPairs, collision_loss
-from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
+from train.losses.chamfer import Groups
+from train.losses.collision import CollisionPairs
+from train.losses.terms import LOSS_TERMS, TermInputs
 from train.losses.weights import LossWeights
 
-
-TERMS = ("chamfer", "normal", "flat", "collision", "template_normal", "symmetry")
+TERMS = tuple(t.name for t in LOSS_TERMS)  # LossWeights has sealed the table
 
 
 def weighted_sum(terms: dict[str, Tensor], weights: LossWeights) -> Tensor:
@@ -52,7 +50,8 @@ def loss_terms(
     collision: CollisionPairs | None = None,
     groups: Groups | None = None,
 ) -> dict[str, Tensor]:
-    """Each unweighted term of the paper's loss per batch item ``(B,)``, keyed by ``TERMS``.
+    """Each unweighted term of the loss per batch item ``(B,)``, keyed by ``TERMS`` (the term table,
+    ``train.losses.terms``).
 
     ``patches (B, P, 4, 4, 3)`` sampled at ``st (S, 2)`` or ``(P, S, 2)``; targets ``(B, M, 3)``.
     ``patch_mask (B, P)`` bool drops patches (absent optional parts) from every term;
@@ -63,29 +62,11 @@ def loss_terms(
     part group. A term whose weight is 0 or whose inputs are
     missing is skipped (reported as 0), which is how ablations save time.
     """
-    bsz = patches.shape[0]
-    zero = patches.new_zeros(bsz)
-    ev = evaluate_patches(patches, st)
-    valid = None if patch_mask is None else patch_mask[..., None].expand(ev.jacobian.shape)
+    x = TermInputs(patches, st, target_points, target_normals, patch_mask, template_normals, control_points,
+                   symmetry_pairs, symmetry_valid, plane_x, collision, groups)
+    zero = patches.new_zeros(patches.shape[0])
     terms: dict[str, Tensor] = {}
-    need_match = weights.chamfer != 0 or weights.normal != 0
-    matches = match_points(ev.points, target_points, valid, groups) if need_match else None
-    terms["chamfer"] = chamfer_loss(ev.points, ev.jacobian, target_points, valid, matches, groups) if weights.chamfer else zero
-    terms["normal"] = (
-        normal_alignment_loss(ev.normals, ev.jacobian, target_normals, matches, valid, groups) if weights.normal else zero
-    )
-    terms["flat"] = flatness_loss(ev.points, st, ev.jacobian, valid) if weights.flat else zero
-    terms["collision"] = (
-        collision_loss(patches, collision, patch_mask=patch_mask) if weights.collision and collision is not None else zero
-    )
-    terms["template_normal"] = (
-        template_normal_loss(ev.normals, template_normals.to(patches.dtype), ev.jacobian, valid)
-        if weights.template_normal and template_normals is not None
-        else zero
-    )
-    terms["symmetry"] = (
-        symmetry_loss(control_points, symmetry_pairs, plane_x, symmetry_valid)
-        if weights.symmetry and control_points is not None and symmetry_pairs is not None
-        else zero
-    )
+    for term in LOSS_TERMS:
+        value = term.fn(x) if getattr(weights, term.name) else None
+        terms[term.name] = zero if value is None else value
     return terms

@@ -107,9 +107,6 @@ class Symmetry:
     self_points: tuple[int, ...] = ()
 
 
-REGULARIZERS = ("template_normal", "symmetry")  # weights a template file chooses (off unless named)
-
-
 class TemplateError(ValueError):
     """The template is inconsistent (bad reference, open patch loop, junction cycle)."""
 
@@ -204,9 +201,11 @@ class Template:
             for name, ids in table.items():
                 if any(not 0 <= i < len(self.patches) for i in ids):
                     raise TemplateError(f"{kind} {name!r}: bad patch index")
+        from train.losses.terms import regularizer_names  # the loss term table says which terms are regularizers
+
         for name in self.regularizers:
-            if name not in REGULARIZERS:
-                raise TemplateError(f"regularizer {name!r}: expected one of {REGULARIZERS}")
+            if name not in regularizer_names():
+                raise TemplateError(f"regularizer {name!r}: expected one of {regularizer_names()}")
         grouped = [lab for labels in self.part_groups.values() for lab in labels]
         if len(grouped) != len(set(grouped)):
             raise TemplateError("part_groups: a label is in more than one group")

@@ -1,0 +1,129 @@
+"""The table of loss terms: one ``LossTerm`` entry per term of the training loss.
+
+An entry gives the term's name, the function computing it per batch item, its default weight
+(the paper's value for unit-sphere models), whether the trainer offers a ``--no-<name>``
+ablation flag, and whether it is a regularizer a template file switches on (off unless the
+template's ``regularizers`` name it). ``LossWeights``, the ``--w-<name>`` / ``--no-<name>``
+flags, ``loss_terms`` (and so ``Objective.terms``) and the training log's columns are all made
+from this table, so a new term is one entry in ``LOSS_TERMS``. Its function gets the batch as a
+``TermInputs`` and returns ``(B,)``, or None when its inputs are missing (reported as 0).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Callable
+
+from torch import Tensor
+
+from train.geometry.coons import PatchSamples, evaluate_patches
+from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
+from train.losses.collision import CollisionPairs, collision_loss
+from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
+
+
+@dataclass
+class TermInputs:
+    """One batch as the terms see it (shapes as in ``loss_terms``); patch samples and
+    point matches are computed once, on first use, and shared by the terms needing them."""
+
+    patches: Tensor
+    st: Tensor
+    target_points: Tensor
+    target_normals: Tensor
+    patch_mask: Tensor | None = None
+    template_normals: Tensor | None = None
+    control_points: Tensor | None = None
+    symmetry_pairs: Tensor | None = None
+    symmetry_valid: Tensor | None = None
+    plane_x: float = 0.0
+    collision: CollisionPairs | None = None
+    groups: Groups | None = None
+
+    @functools.cached_property
+    def ev(self) -> PatchSamples:
+        return evaluate_patches(self.patches, self.st)
+
+    @functools.cached_property
+    def valid(self) -> Tensor | None:
+        """(B, P, S) bool: samples of present patches (None: all)."""
+        return None if self.patch_mask is None else self.patch_mask[..., None].expand(self.ev.jacobian.shape)
+
+    @functools.cached_property
+    def matches(self) -> Matches:
+        return match_points(self.ev.points, self.target_points, self.valid, self.groups)
+
+
+@dataclass(frozen=True)
+class LossTerm:
+    name: str
+    fn: Callable[[TermInputs], Tensor | None]
+    weight: float  # default weight
+    ablation: bool = True  # the trainer offers --no-<name>
+    regularizer: bool = False  # off unless the template file names it (Template.regularizers)
+
+
+def _chamfer(x: TermInputs) -> Tensor:
+    return chamfer_loss(x.ev.points, x.ev.jacobian, x.target_points, x.valid, x.matches, x.groups)
+
+
+def _normal(x: TermInputs) -> Tensor:
+    return normal_alignment_loss(x.ev.normals, x.ev.jacobian, x.target_normals, x.matches, x.valid, x.groups)
+
+
+def _flat(x: TermInputs) -> Tensor:
+    return flatness_loss(x.ev.points, x.st, x.ev.jacobian, x.valid)
+
+
+def _collision(x: TermInputs) -> Tensor | None:
+    return None if x.collision is None else collision_loss(x.patches, x.collision, patch_mask=x.patch_mask)
+
+
+def _template_normal(x: TermInputs) -> Tensor | None:
+    if x.template_normals is None:
+        return None
+    return template_normal_loss(x.ev.normals, x.template_normals.to(x.patches.dtype), x.ev.jacobian, x.valid)
+
+
+def _symmetry(x: TermInputs) -> Tensor | None:
+    if x.control_points is None or x.symmetry_pairs is None:
+        return None
+    return symmetry_loss(x.control_points, x.symmetry_pairs, x.plane_x, x.symmetry_valid)
+
+
+LOSS_TERMS: list[LossTerm] = [
+    LossTerm("chamfer", _chamfer, 1.0, ablation=False),
+    LossTerm("normal", _normal, 0.008),
+    LossTerm("flat", _flat, 2.0),
+    # our L_coll is a penetration depth (docs/geometry.md), not the paper's indicator (1e-5)
+    LossTerm("collision", _collision, 1.0),
+    LossTerm("template_normal", _template_normal, 1e-4, regularizer=True),
+    LossTerm("symmetry", _symmetry, 1.0, regularizer=True),
+]
+
+_sealed = False  # set when LossWeights is built from the table; later entries could not reach it
+
+
+def register_term(term: LossTerm) -> LossTerm:
+    """Add a term to the table (for plugins and tests; the project's own terms are listed above).
+    Only before ``train.losses.weights`` is imported: ``LossWeights`` is made from the table then."""
+    if _sealed:
+        raise RuntimeError(f"loss term {term.name!r} registered after LossWeights was built; "
+                           "register terms before importing train.losses.weights")
+    if any(t.name == term.name for t in LOSS_TERMS):
+        raise ValueError(f"loss term {term.name!r} is already in the table")
+    LOSS_TERMS.append(term)
+    return term
+
+
+def seal() -> tuple[LossTerm, ...]:
+    """The table, fixed from now on (called once, by train.losses.weights)."""
+    global _sealed
+    _sealed = True
+    return tuple(LOSS_TERMS)
+
+
+def regularizer_names() -> tuple[str, ...]:
+    """Terms a template file may name in ``regularizers``."""
+    return tuple(t.name for t in LOSS_TERMS if t.regularizer)
