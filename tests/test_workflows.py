@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import webdataset as wds
 
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from pipeline.dataset.shards import REQUIRED_MEMBERS, file_sha256, list_shards
 from pipeline.dataset.verify import verify_dataset

@@ -19,7 +19,7 @@ import stat
 from pathlib import Path
 
 from pipeline.core.atomic import read_json, write_json
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
 from pipeline.sources.mesh_io import sha256_file
 
