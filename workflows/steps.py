@@ -21,7 +21,8 @@ from pathlib import Path
 from pipeline.core.atomic import read_json, storage_error, write_json
 from pipeline.build.settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
-from pipeline.core.records import ModelRef, Progress, model_dir
+from pipeline.build.listing import model_ref
+from pipeline.core.records import Progress, model_dir
 from pipeline.dataset.manifest import (FRAGMENT, build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
 from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, write_category_shards
@@ -45,11 +46,6 @@ def batch_path(s: BuildSettings, stage: str, lst: dict, batch: int) -> Path:
 
 def n_batches(n_models: int, batch_size: int) -> int:
     return -(-n_models // batch_size)
-
-
-def _ref(category: str, m: dict) -> ModelRef:
-    """The model as the stages see it: named by its work id (its output folder and seed key)."""
-    return ModelRef(category, m["work_id"], Path(m["path"]), m["source"])
 
 
 # ---------------------------------------------------------------- steps
@@ -102,7 +98,7 @@ def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     from pipeline.prepare.batch import prepare_batch
 
     models = batch_models(s, lst, batch)
-    records = prepare_batch([_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
+    records = prepare_batch([model_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
                             s.prepare_settings(), progress)
     return _write_batch(s, "prepare", lst, batch,
                         [_outcome(m, "prepare", rec) for m, rec in zip(models, records)], t0)
