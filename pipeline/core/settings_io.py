@@ -70,7 +70,14 @@ def _convert(owner: str, name: str, tp: Any, value: Any, current: Any = None) ->
 
     inner = _optional_inner(tp)
     if inner is not None:
-        return None if value is None else _convert(owner, name, inner, value, current)
+        if value is None:
+            return None
+        try:
+            return _convert(owner, name, inner, value, current)
+        except SettingError:
+            if inner in (bool, int, float, str, Path):
+                raise bad() from None  # "an integer or null"
+            raise
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
             return value
@@ -127,8 +134,13 @@ def from_dict(cls: type[T], data: dict, base: T | None = None) -> T:
     if unknown:
         raise SettingError(f"{owner} has no setting {unknown[0]!r}; it has: {', '.join(fields)}", owner, unknown[0])
     types_ = field_types(cls)
-    clean = {name: _convert(owner, name, types_[name], value, getattr(base, name, None))
-             for name, value in data.items()}
+    clean = {}
+    for name, value in data.items():
+        try:
+            clean[name] = _convert(owner, name, types_[name], value, getattr(base, name, None))
+        except SettingError as exc:
+            exc.field = name  # the setting itself, also when one of its items is wrong
+            raise
     try:
         return dataclasses.replace(base, **clean) if base is not None else cls(**clean)
     except TypeError as exc:  # a required field missing
