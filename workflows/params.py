@@ -49,7 +49,10 @@ def add_task_arguments(parser: argparse.ArgumentParser, task: type[luigi.Task]) 
     """One ``--flag`` per parameter of ``task``, as the `luigi` command spells it. Flags not given
     are left out of the namespace, so the task's own defaults apply."""
     for name, param in task.get_params():
-        kw: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS, "help": param.description}
+        default = getattr(param, "_default", luigi.parameter._no_value)
+        shown = "" if default in (luigi.parameter._no_value, "", False) else f" (default: {default})"
+        kw: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS,
+                              "help": ((param.description or "") + shown).strip() or None}
         if isinstance(param, luigi.BoolParameter):
             kw["action"] = "store_true"
         else:

@@ -218,6 +218,8 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, .
             kw["required"] = True
         else:
             kw["default"] = default
+            if tp is not bool and default not in (None, ""):
+                kw["help"] = f"{kw['help'] or ''} (default: %(default)s)".strip()
         if tp is bool:
             kw["action"] = argparse.BooleanOptionalAction
         elif typing.get_origin(tp) is tuple:
