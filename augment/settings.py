@@ -40,7 +40,7 @@ class VectorizeSettings:
 class AugmentSettings:
     """How each rendered view becomes K pencil-sketch variants."""
 
-    variants: int = 4
+    variants: int = 2
     out_size: int = 128
     # One width per variant, in rotation (variant k uses widths[k % len]); SynDraw: 2.5 ± 0.75.
     widths: tuple[float, ...] = (1.5, 2.5, 3.5)
@@ -84,11 +84,8 @@ class AugmentSettings:
     supersample: int = 4
 
     def __post_init__(self) -> None:
-        # Overrides arrive as JSON (lists, dicts): normalize so equal settings hash equally.
-        if isinstance(self.vectorize, dict):
-            object.__setattr__(self, "vectorize", VectorizeSettings(**self.vectorize))
-        for name in ("widths", "split_gap", "darkness"):
-            object.__setattr__(self, name, tuple(float(x) for x in getattr(self, name)))
+        # Overrides arrive as JSON through pipeline.core.settings_io.from_dict, which makes lists
+        # tuples and ints floats, so equal settings hash equally.
         if self.variants < 1 or self.out_size < 8:
             raise ValueError("variants must be >= 1 and out_size >= 8")
         if len(self.widths) < 1 or min(self.widths) <= 0:

@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
 from pipeline.core.atomic import read_json  # noqa: E402
-from pipeline.dataset.build_settings import BuildSettings  # noqa: E402
+from pipeline.build.settings import BuildSettings  # noqa: E402
 from pipeline.core.records import model_dir  # noqa: E402
 from pipeline.shapes import CATEGORIES  # noqa: E402
 from workflows import steps  # noqa: E402

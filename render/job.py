@@ -8,20 +8,12 @@ from pathlib import Path
 
 from pipeline.core.atomic import StorageError, read_json, write_json
 from pipeline.core.model_loop import FATAL_ERRORS
+from pipeline.core.settings_io import from_dict
 from render.settings import RenderSettings
 
 PROGRESS_PREFIX = "@@render-progress "
 PARENT_ENV = "SKETCH_RENDER_PARENT"  # pid of the process that started the worker
 FATAL_EXIT = 3  # the worker's exit code after a ``{"fatal": ...}`` progress line
-
-
-def settings_from_dict(d: dict) -> RenderSettings:
-    d = dict(d)
-    if "elevation_range" in d:
-        d["elevation_range"] = tuple(float(x) for x in d["elevation_range"])
-    if "edge_types" in d:
-        d["edge_types"] = tuple(d["edge_types"])
-    return RenderSettings(**d)
 
 
 def write_job(path: Path, category: str, items: list[tuple[str, Path]], stage_dir: Path,
@@ -38,7 +30,7 @@ def write_job(path: Path, category: str, items: list[tuple[str, Path]], stage_di
 
 def read_job(path: Path) -> dict:
     job = read_json(path)
-    job["settings"] = settings_from_dict(job["settings"])
+    job["settings"] = from_dict(RenderSettings, job["settings"])
     return job
 
 

@@ -23,7 +23,7 @@ class RenderSettings:
     """
 
     backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
-    views: int = 8
+    views: int = 4
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
     rig: str = "random"

@@ -1,7 +1,7 @@
 """The package layout is the data flow: every import points down the stage order.
 
 base (pipeline.core, pipeline.shapes) <- sources <- prepare <- render <- augment
-<- dataset writing and sheets <- workflows; ``train`` sees only the base layer.
+<- dataset writing, the build's settings and listing, and sheets <- workflows; ``train`` sees only the base layer.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ LEVELS = {
     "render": 3,
     "augment": 4,
     "pipeline.dataset": 5,
+    "pipeline.build": 5,
     "pipeline.sheets": 5,
     "pipeline.__main__": 6,
     "workflows": 6,

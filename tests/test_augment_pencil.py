@@ -79,7 +79,7 @@ def test_empty_strokes_give_blank_paper():
 
 def test_view_variants_differ_and_repeat():
     strokes = [s * 2 for s in shape_strokes()]  # as if vectorized from a 256² render
-    s = AugmentSettings()
+    s = AugmentSettings(variants=4)
     v1 = view_variants(strokes, 256, s, (0, "mug", "00001", 0))
     v2 = view_variants(strokes, 256, s, (0, "mug", "00001", 0))
     assert len(v1) == 4 and [v.width for v in v1] == [0.75, 1.25, 1.75, 0.75]

@@ -11,6 +11,7 @@ from augment import strokes as A
 from augment.fitting import polyline_length
 from augment.settings import AugmentSettings, VectorizeSettings
 from pipeline.core.stage_keys import settings_hash
+from pipeline.core.settings_io import from_dict
 
 
 def lines(n: int = 20, length: float = 100.0) -> list[np.ndarray]:
@@ -121,10 +122,10 @@ def test_chain_is_deterministic_and_seed_dependent():
     assert all(np.array_equal(x, y) for x, y in zip(src, A.resample_strokes(lines(), 1.0)))
 
 
-def test_settings_validate_and_normalize_json_overrides():
+def test_settings_validate_and_json_overrides_normalize():
     with pytest.raises(ValueError):
         AugmentSettings(split_prob=1.5)
-    a = AugmentSettings(widths=[1.0, 2.0, 3.0], vectorize={"spur_length": 5.0})
+    a = from_dict(AugmentSettings, {"widths": [1, 2.0, 3.0], "vectorize": {"spur_length": 5}})
     b = AugmentSettings(widths=(1.0, 2.0, 3.0), vectorize=VectorizeSettings(spur_length=5.0))
     assert a == b and settings_hash(a) == settings_hash(b)
     assert settings_hash(dataclasses.replace(b, split_prob=0.1)) != settings_hash(b)

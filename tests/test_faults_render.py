@@ -8,10 +8,10 @@ from pathlib import Path
 
 import luigi
 
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from workflows import BuildCategory
-from pipeline.sources.listing import current_listing
+from pipeline.build.listing import current_listing
 from workflows.steps import batch_path
 
 # a timeout no Blender start can meet: the worker "hangs" from the supervisor's point of view

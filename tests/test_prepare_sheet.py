@@ -1,10 +1,12 @@
-"""The documented contact-sheet command draws raw/prepared pairs and reuses prepared models."""
+"""The documented contact-sheet command draws raw/prepared pairs, in the build's prepare folder, and
+reuses prepared models."""
 
 from __future__ import annotations
 
 import numpy as np
 from PIL import Image
 
+from pipeline.build.settings import BuildSettings
 from pipeline.sheets.prepare import main
 
 
@@ -20,6 +22,9 @@ def test_prepare_sheet_command(tmp_path):
     first = out.read_bytes()
     records = sorted((tmp_path / "work").glob("prepare-*/*/*/record.json"))
     assert len(records) == 2
+    # the sheet prepares into the folder a build with these settings uses
+    build = BuildSettings(work_dir=tmp_path / "work", models_per_category=1, prepare_overrides='{"resolution": 2000}')
+    assert {r.parents[2] for r in records} == {build.stage_dir("prepare")}
     mtimes = [r.stat().st_mtime_ns for r in records]
     main(args)  # a second run reuses the prepared models and draws the same sheet
     assert out.read_bytes() == first

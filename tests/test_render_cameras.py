@@ -10,7 +10,7 @@ from render.settings import RenderSettings
 
 
 def test_rig_is_seeded_per_model():
-    s = RenderSettings()
+    s = RenderSettings(views=8)
     a = rig(s, 0, "car", "00001")
     assert len(a) == 8
     again = rig(s, 0, "car", "00001")

@@ -64,7 +64,7 @@ def test_every_category_at_defaults(prepared, tmp_path):
         recs = render_batch(cat, cat_items, tmp_path, s, seed=0)
         for (mid, mesh), rec in zip(cat_items, recs):
             assert rec["status"] == "ok", rec
-            check_model(tmp_path / cat / mid, mesh, 8, 256)
+            check_model(tmp_path / cat / mid, mesh, s.views, s.image_size)
 
 
 def test_orthographic_front_side_top(prepared, tmp_path):

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import webdataset as wds
 
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from pipeline.core.schema import REQUIRED_MEMBERS
 from pipeline.dataset.shards import file_sha256, list_shards

@@ -8,27 +8,15 @@ import json
 import sys
 
 from pipeline.core.schema import SPLITS
+from pipeline.core.settings_io import add_arguments, from_args
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.losses.weights import LossWeights, add_weight_flags, weights_from_flags
 
 
 def _fit_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dataset", required=True, help="dataset folder holding <category>/<split>-NNNNN.tar")
-    p.add_argument("--category", required=True)
-    p.add_argument("--template", required=True, help="sphere24, sphere54, a category name, or a template file")
-    p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--out", required=True, help="run folder (re-using it resumes the run)")
-    p.add_argument("--batch-size", type=int, default=8)
-    p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=2, help="data loader worker processes per rank")
-    p.add_argument("--max-views", type=int, default=4)
-    p.add_argument("--points", type=int, default=7000, help="target / patch sample points per shape")
-    p.add_argument("--image-size", type=int, default=128)
-    p.add_argument("--checkpoint-every", type=int, default=500)
-    p.add_argument("--log-every", type=int, default=10)
-    p.add_argument("--val-every", type=int, default=0, help="validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
-    p.add_argument("--device", default=None, help="default: cuda when present, else cpu")
+    from train.fit import FitSettings
+
+    add_arguments(p, FitSettings, skip=("weights",))  # one flag per setting, help from the field
     add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
 
@@ -84,12 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.cmd == "fit":
         from train.fit import FitSettings, fit
 
-        s = FitSettings(
-            dataset=a.dataset, category=a.category, template=a.template, out=a.out, steps=a.steps,
-            batch_size=a.batch_size, lr=a.lr, seed=a.seed, workers=a.workers, max_views=a.max_views,
-            n_points=a.points, image_size=a.image_size, checkpoint_every=a.checkpoint_every,
-            log_every=a.log_every, val_every=a.val_every, device=a.device, weights=_weights(a),
-        )  # fmt: skip
+        s = from_args(FitSettings, a, skip=("weights",), weights=_weights(a))
         print(json.dumps(fit(s, progress=not a.no_progress)))
     elif a.cmd == "evaluate":
         from pathlib import Path

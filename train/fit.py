@@ -26,6 +26,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
+from pipeline.core.settings_io import from_dict
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.losses.total import TERMS, weighted_sum
@@ -37,24 +38,32 @@ from train.templates import Template, load_template
 CSV_FIELDS = ("step", "loss") + TERMS + ("val_chamfer", "seconds")
 
 
+def _arg(default=dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
+    """A field with its command-line help (``python -m train fit``) and flag name when not its own."""
+    meta = {"help": help, **({"flag": flag} if flag else {})}
+    return dataclasses.field(default=default, metadata=meta)
+
+
 @dataclasses.dataclass(frozen=True)
 class FitSettings:
-    dataset: str
-    category: str
-    template: str
-    out: str
+    """One training run; ``python -m train fit`` has a flag for each field but ``weights``."""
+
+    dataset: str = _arg(help="dataset folder holding <category>/<split>-NNNNN.tar")
+    category: str = _arg()
+    template: str = _arg(help="sphere24, sphere54, a category name, or a template file")
+    out: str = _arg(help="run folder (re-using it resumes the run)")
     steps: int = 1000
     batch_size: int = 8
     lr: float = 1e-4
     seed: int = 0
-    workers: int = 2
-    max_views: int = 4
-    n_points: int = 7000
-    image_size: int = 128
+    workers: int = 2  # data loader worker processes per rank
+    max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
+    n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
+    image_size: int = DataSettings.image_size
     checkpoint_every: int = 500
     log_every: int = 10
-    val_every: int = 0  # 0: no validation; else L_Ch on the val split every N steps, best.pt kept
-    device: str | None = None
+    val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
+    device: str | None = None  # default: cuda when present, else cpu
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:
@@ -145,7 +154,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     ckpt_path, start = out / "checkpoint.pt", 0
     if ckpt_path.exists():
         ckpt = load_checkpoint(ckpt_path, info.device)
-        saved = FitSettings(**{**ckpt["settings"], "weights": LossWeights(**ckpt["settings"]["weights"])})
+        saved = from_dict(FitSettings, ckpt["settings"])
         if saved.identity() != settings.identity():
             raise ValueError(f"{out}: existing run has different settings; use another --out")
         model.load_state_dict(ckpt["model"])

@@ -23,7 +23,7 @@ from typing import TextIO
 
 import luigi
 
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.core.records import model_dir
 from pipeline.core.schema import MANIFEST, RECORD, SPLITS
 from pipeline.dataset.manifest import read_manifest

@@ -3,7 +3,7 @@ tested directly. Each batch step writes a small JSON listing its models' outcome
 
 ``{"stage", "category", "batch", "models": [{"model_id", "work_id", "status", "stage", "error"?}]}``
 
-Steps take the category's model list (pipeline.sources.listing): a batch is a slice of it, and models are
+Steps take the category's model list (pipeline.build.listing): a batch is a slice of it, and models are
 handed to the stages under their work ids, which name their output folders.
 
 A model that failed upstream is carried forward with the stage where it failed, so the shard
@@ -19,9 +19,10 @@ import time
 from pathlib import Path
 
 from pipeline.core.atomic import read_json, storage_error, write_json
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
-from pipeline.core.records import ModelRef, Progress, model_dir
+from pipeline.build.listing import model_ref
+from pipeline.core.records import Progress, model_dir
 from pipeline.core.schema import FRAGMENT
 from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
@@ -48,17 +49,12 @@ def n_batches(n_models: int, batch_size: int) -> int:
     return -(-n_models // batch_size)
 
 
-def _ref(category: str, m: dict) -> ModelRef:
-    """The model as the stages see it: named by its work id (its output folder and seed key)."""
-    return ModelRef(category, m["work_id"], Path(m["path"]), m["source"])
-
-
 # ---------------------------------------------------------------- steps
 
 def write_source_list(s: BuildSettings, category: str) -> int:
     """Generate the procedural source's models and store their list (file sources store theirs
     while listing); returns the count."""
-    from pipeline.sources.listing import current_listing, list_path, procedural_tag
+    from pipeline.build.listing import current_listing, list_path, procedural_tag
     from pipeline.sources.layouts import list_models
 
     if not s.is_procedural:
@@ -103,7 +99,7 @@ def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     from pipeline.prepare.batch import prepare_batch
 
     models = batch_models(s, lst, batch)
-    records = prepare_batch([_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
+    records = prepare_batch([model_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
                             s.prepare_settings(), progress)
     return _write_batch(s, "prepare", lst, batch,
                         [_outcome(m, "prepare", rec) for m, rec in zip(models, records)], t0)

@@ -7,33 +7,19 @@ from __future__ import annotations
 
 import contextlib
 import functools
-from pathlib import Path
 from typing import Iterator
 
 import luigi
 
-from pipeline.dataset.build_settings import BuildSettings
-from pipeline.sources.listing import current_listing, list_path, read_listing
+from pipeline.build.settings import BuildSettings
+from pipeline.build.listing import current_listing, list_path, read_listing
 from workflows import steps, validate
+from workflows.params import settings_values, with_parameters
 
 
+@with_parameters(BuildSettings)  # one parameter per BuildSettings field (--views, --render-settings, ...)
 class _BuildTask(luigi.Task):
     """Parameters shared by every task of a build (Luigi task ids include them all)."""
-
-    source = luigi.Parameter(default="procedural", description="'procedural' or a ShapeNet / <root>/<category>/ folder")
-    models_per_category = luigi.IntParameter(default=16, description="models per category (0 = all)")
-    views = luigi.IntParameter(default=4, description="rendered views per model")
-    variants = luigi.IntParameter(default=2, description="pencil variants per view")
-    image_size = luigi.IntParameter(default=256, description="render size in pixels")
-    out_size = luigi.IntParameter(default=128, description="sketch size in pixels")
-    seed = luigi.IntParameter(default=0)
-    batch_size = luigi.IntParameter(default=16, significant=False, description="models per batch task")
-    prepare_settings = luigi.Parameter(default="", description="JSON object of PrepareSettings overrides")
-    render_settings = luigi.Parameter(default="", description="JSON object of RenderSettings overrides")
-    augment_settings = luigi.Parameter(default="", description="JSON object of AugmentSettings overrides")
-    shard_settings = luigi.Parameter(default="", description="JSON object of ShardSettings overrides")
-    work_dir = luigi.Parameter(default="data/work")
-    dataset_dir = luigi.Parameter(default="data/dataset")
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
@@ -43,12 +29,7 @@ class _BuildTask(luigi.Task):
 
     @functools.cached_property
     def build(self) -> BuildSettings:
-        return BuildSettings(
-            source=self.source, models_per_category=self.models_per_category, views=self.views,
-            variants=self.variants, image_size=self.image_size, out_size=self.out_size, seed=self.seed,
-            prepare_overrides=self.prepare_settings, render_overrides=self.render_settings,
-            augment_overrides=self.augment_settings, shard_overrides=self.shard_settings,
-            work_dir=Path(self.work_dir), dataset_dir=Path(self.dataset_dir), batch_size=self.batch_size)
+        return validate.build_settings(settings_values(BuildSettings, self))
 
     @contextlib.contextmanager
     def recorded(self) -> Iterator[None]:
@@ -64,7 +45,7 @@ class _BuildTask(luigi.Task):
 
 
 class _ListedTask(_BuildTask):
-    """A task of one category's model list, named by the list's key (see pipeline.sources.listing)."""
+    """A task of one category's model list, named by the list's key (see pipeline.build.listing)."""
 
     category = luigi.Parameter()
     listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")

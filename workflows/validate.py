@@ -7,37 +7,54 @@ traceback) for the `luigi` command; `make dataset` prints it and exits 2.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
+from typing import Any
 
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.build.settings import BuildSettings
+from pipeline.core.settings_io import SettingError, flag_name, from_dict
 
 
 class BuildParameterError(ValueError):
     """A build parameter is invalid; ``str()`` is the one line to show the user."""
 
 
-# (parameter as typed on the command line, attribute, smallest allowed value)
-_MINIMUMS = (("--models-per-category", "models_per_category", 0), ("--batch-size", "batch_size", 1),
-             ("--views", "views", 1), ("--variants", "variants", 1), ("--image-size", "image_size", 8),
-             ("--out-size", "out_size", 8), ("--seed", "seed", 0))
-_OVERRIDES = (("--prepare-settings", "prepare_settings"), ("--render-settings", "render_settings"),
-              ("--augment-settings", "augment_settings"), ("--shard-settings", "shard_settings"))
+_FIELDS = {f.name: f for f in dataclasses.fields(BuildSettings)}
+# smallest allowed value of each integer setting
+_MINIMUMS = {"models_per_category": 0, "batch_size": 1, "views": 1, "variants": 1, "image_size": 8,
+             "out_size": 8, "seed": 0}
+# the per-stage settings each JSON parameter overrides
+_OVERRIDES = {"prepare_overrides": "prepare_settings", "render_overrides": "render_settings",
+              "augment_overrides": "augment_settings", "shard_overrides": "shard_settings"}
+
+
+def flag(field: str) -> str:
+    """A BuildSettings field as typed on the command line."""
+    return "--" + flag_name(_FIELDS[field]).replace("_", "-")
+
+
+def build_settings(values: dict[str, Any]) -> BuildSettings:
+    """BuildSettings from parameter values by field name; a mistyped one names its flag."""
+    try:
+        return from_dict(BuildSettings, values)
+    except SettingError as exc:
+        raise BuildParameterError(f"{flag(exc.field)}: {exc}" if exc.field in _FIELDS else str(exc)) from None
 
 
 def check_settings(s: BuildSettings) -> None:
     """Numbers in range, the source present, every settings JSON parsed and type-checked."""
-    for flag, attr, low in _MINIMUMS:
+    for attr, low in _MINIMUMS.items():
         value = getattr(s, attr)
         if not isinstance(value, int) or value < low:
             extra = " (0 = every model)" if attr == "models_per_category" else ""
-            raise BuildParameterError(f"{flag} must be an integer >= {low}{extra}, got {value!r}")
+            raise BuildParameterError(f"{flag(attr)} must be an integer >= {low}{extra}, got {value!r}")
     if not s.is_procedural and not Path(s.source).is_dir():
         raise BuildParameterError(f"--source {s.source!r} is neither 'procedural' nor a folder")
-    for flag, method in _OVERRIDES:
+    for attr, method in _OVERRIDES.items():
         try:
             getattr(s, method)()
         except (ValueError, TypeError) as exc:  # json.JSONDecodeError is a ValueError
-            raise BuildParameterError(f"{flag}: {exc}") from None
+            raise BuildParameterError(f"{flag(attr)}: {exc}") from None
     sh = s.shard_settings()
     if sh.max_samples_per_shard < 1 or sh.max_bytes_per_shard < 1 or sh.points < 1:
         raise BuildParameterError("--shard-settings: max_samples_per_shard, max_bytes_per_shard and points must be >= 1")

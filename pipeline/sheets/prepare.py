@@ -2,25 +2,28 @@
 
     .venv/bin/python -m pipeline.sheets.prepare --out sheets/prepared.png --per-category 3
 
-Models are prepared (or reused, if already prepared) under ``--work``; raw thumbnails are drawn
-from the source files, prepared ones from mesh.ply, both by the CPU thumbnail renderer.
+Models are prepared (or reused, if already prepared) under ``--work``, in the prepare stage folder
+a build with the same settings uses (``BuildSettings.stage_dir``); raw thumbnails are drawn from
+the source files, prepared ones from mesh.ply, both by the CPU thumbnail renderer.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.stage_keys import stage_key
+from pipeline.build.listing import listed_models
+from pipeline.build.settings import BuildSettings
 from pipeline.core.errors import ModelError
-from pipeline.sources.mesh_io import load_mesh, read_ply
 from pipeline.core.schema import MESH_FILE
-from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.core.images import contact_sheet, save_png
-from pipeline.sources.layouts import list_categories, list_models
 from pipeline.core.thumbnails import render_mesh
+from pipeline.prepare.batch import PrepareSettings, prepare_batch
+from pipeline.sources.layouts import list_categories
+from pipeline.sources.mesh_io import load_mesh, read_ply
 
 RAW_COLOR = (0.85, 0.72, 0.6)
 PREPARED_COLOR = (0.62, 0.74, 0.88)
@@ -32,14 +35,14 @@ def _thumb(vertices: np.ndarray, faces: np.ndarray, color, size: int, category: 
     return render_mesh(vertices, faces, size=size, azimuth_deg=az, elevation_deg=el, face_colors=np.array(color))
 
 
-def build_sheet(source: str, work: Path, per_category: int, seed: int, size: int,
-                categories: list[str], settings: PrepareSettings) -> np.ndarray:
-    """Prepare the first ``per_category`` models of each category and draw raw/prepared pairs."""
-    stage = Path(work) / stage_key("prepare", settings, upstream=f"{source}:{seed}")
+def build_sheet(build: BuildSettings, size: int, categories: list[str]) -> np.ndarray:
+    """Prepare the first ``build.models_per_category`` models of each category (as the build does,
+    into its prepare stage folder) and draw raw/prepared pairs."""
+    stage, settings, per_category = build.stage_dir("prepare"), build.prepare_settings(), build.models_per_category
     blank = np.full((size, size, 3), 255, np.uint8)
     images, labels = [], []
     for cat in categories:
-        refs = list_models(source, cat, per_category, seed, Path(work))
+        refs = listed_models(build, cat)
         records = prepare_batch(refs, stage, settings)
         for ref, rec in zip(refs, records):
             try:
@@ -75,9 +78,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--resolution", type=int, default=PrepareSettings.resolution)
     ap.add_argument("--max-faces", type=int, default=PrepareSettings.max_faces)
     args = ap.parse_args(argv)
-    settings = PrepareSettings(resolution=args.resolution, max_faces=args.max_faces)
+    if args.per_category < 1:
+        ap.error("--per-category must be >= 1")
+    build = BuildSettings(source=args.source, work_dir=args.work, models_per_category=args.per_category, seed=args.seed,
+                          prepare_overrides=json.dumps({"resolution": args.resolution, "max_faces": args.max_faces}))
     categories = args.categories or list_categories(args.source)
-    sheet = build_sheet(args.source, args.work, args.per_category, args.seed, args.size, categories, settings)
+    sheet = build_sheet(build, args.size, categories)
     save_png(args.out, sheet)
     print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]})")
 

@@ -5,7 +5,7 @@
     python -m pipeline.sheets.render --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
 
 ``--procedural`` first makes the inputs itself: procedural models → prepare stage → render stage
-(all under WORK, keyed like the workflow's stage folders), then draws the sheet.
+(all under WORK, in the stage folders a build with the same settings uses), then draws the sheet.
 ``--strokes`` overlays the captured Freestyle strokes (colour by edge type) on each view.
 """
 
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pipeline.build.settings import BuildSettings
 from pipeline.core.atomic import read_json
-from pipeline.core.records import read_record
 from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
 from pipeline.core.images import contact_sheet, save_png
-from render.settings import RenderSettings
+from pipeline.core.records import model_dir, read_record
 
 TYPE_COLOURS = {"silhouette": (220, 30, 30), "border": (30, 120, 220), "crease": (20, 160, 60)}
 
@@ -78,24 +78,21 @@ def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
     return contact_sheet(images, labels, cols=cols)
 
 
-def render_procedural(work_dir: Path, categories: list[str], per_category: int, seed: int,
-                      settings: RenderSettings) -> Path:
-    """Procedural models → prepare → render under ``work_dir``; returns the render stage folder."""
-    from pipeline.core.stage_keys import stage_key
-    from pipeline.prepare.batch import PrepareSettings, prepare_batch
-    from pipeline.sources.layouts import list_models
+def render_procedural(build: BuildSettings, categories: list[str]) -> Path:
+    """The build's models → prepare → render, into the build's stage folders; returns the render one."""
+    from pipeline.build.listing import listed_models
+    from pipeline.prepare.batch import prepare_batch
     from render.batch import render_batch
 
-    prep_settings = PrepareSettings()
-    prep_key = stage_key("prepare", prep_settings)
-    render_key = stage_key("render", settings, prep_key)
+    prep = build.stage_dir("prepare")
     for cat in categories:
-        refs = list_models("procedural", cat, per_category, seed, work_dir)
-        prepare_batch(refs, work_dir / prep_key, prep_settings, progress=_print_progress)
-        items = [(r.model_id, work_dir / prep_key / cat / r.model_id / LINE_MESH_FILE) for r in refs
-                 if (read_record(work_dir / prep_key / cat / r.model_id) or {}).get("status") == "ok"]
-        render_batch(cat, items, work_dir / render_key, settings, seed, progress=_print_progress)
-    return work_dir / render_key
+        refs = listed_models(build, cat)
+        records = prepare_batch(refs, prep, build.prepare_settings(), progress=_print_progress)
+        items = [(r.model_id, model_dir(prep, cat, r.model_id) / LINE_MESH_FILE)
+                 for r, rec in zip(refs, records) if rec.get("status") == "ok"]
+        render_batch(cat, items, build.stage_dir("render"), build.render_settings(), build.seed,
+                     progress=_print_progress)
+    return build.stage_dir("render")
 
 
 def _print_progress(done: int, total: int, message: str) -> None:
@@ -113,8 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--procedural", action="store_true", help="make, prepare and render procedural models first")
     ap.add_argument("--categories", nargs="*", default=None, help="with --procedural (default: all)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--views", type=int, default=RenderSettings.views)
-    ap.add_argument("--image-size", type=int, default=RenderSettings.image_size)
+    ap.add_argument("--views", type=int, default=BuildSettings.views)
+    ap.add_argument("--image-size", type=int, default=BuildSettings.image_size)
     args = ap.parse_args(argv)
 
     if args.procedural:
@@ -123,8 +120,9 @@ def main(argv: list[str] | None = None) -> int:
         from pipeline.shapes import CATEGORIES
 
         cats = args.categories or list(CATEGORIES)
-        settings = RenderSettings(views=args.views, image_size=args.image_size)
-        stage = render_procedural(args.work_dir, cats, args.per_category, args.seed, settings)
+        build = BuildSettings(work_dir=args.work_dir, models_per_category=args.per_category, seed=args.seed,
+                              views=args.views, image_size=args.image_size)
+        stage = render_procedural(build, cats)
     elif args.stage_dir is not None:
         stage = args.stage_dir
     elif args.work_dir is not None:

@@ -1,1 +1,1 @@
-"""Stage 0: where models come from (source layouts, mesh formats, the per-category listing)."""
+"""Stage 0: where models come from (source layouts, mesh formats)."""

@@ -9,121 +9,65 @@ augment and shard keys: prepared meshes and renders are found again under their 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from pathlib import Path
-from typing import Any
 
+from augment.settings import AugmentSettings
+from pipeline.core.settings_io import from_dict, parse_json_object
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
 from pipeline.dataset.shards import ShardSettings
+from pipeline.prepare.settings import PrepareSettings
+from render.settings import RenderSettings
 
 DEFAULT_WORK_DIR = Path("data/work")
 DEFAULT_DATASET_DIR = Path("data/dataset")
 
 
-def _type_name(value: Any) -> str:
-    return {bool: "true/false", int: "an integer", float: "a number", str: "a string"}.get(
-        type(value), type(value).__name__)
-
-
-def _check_type(owner: str, name: str, current: Any, value: Any) -> Any:
-    """``value`` for a setting whose default is ``current``, of the same kind (an integer where
-    an integer is expected, not "abc" or 2.5), lists turned into tuples; else ValueError."""
-    if isinstance(current, tuple):
-        if not isinstance(value, (list, tuple)) or len(value) != len(current):
-            raise ValueError(f"{owner}.{name} must be a list of {len(current)} values, got {value!r}")
-        return tuple(_check_type(owner, f"{name}[{i}]", c, v) for i, (c, v) in enumerate(zip(current, value)))
-    if isinstance(current, bool) or isinstance(value, bool):
-        ok = isinstance(current, bool) and isinstance(value, bool)
-    elif isinstance(current, int):
-        ok = isinstance(value, int)
-    elif isinstance(current, float):
-        ok = isinstance(value, (int, float))
-    elif isinstance(current, str):
-        ok = isinstance(value, str)
-    else:
-        ok = True  # None or another kind: the settings class checks it
-    if not ok:
-        raise ValueError(f"{owner}.{name} must be {_type_name(current)}, got {value!r}")
-    return value
-
-
-def _replace(cls_instance: Any, overrides: dict) -> Any:
-    """``dataclasses.replace`` with every value type-checked against the field's default; accepts
-    lists for tuple fields and dicts for nested ones."""
-    fields = {f.name: f for f in dataclasses.fields(cls_instance)}
-    owner = type(cls_instance).__name__
-    clean = {}
-    for name, value in overrides.items():
-        if name not in fields:
-            raise ValueError(f"{owner} has no setting {name!r}; it has: {', '.join(fields)}")
-        current = getattr(cls_instance, name)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            value = _replace(current, value)
-        else:
-            value = _check_type(owner, name, current, value)
-        clean[name] = value
-    return dataclasses.replace(cls_instance, **clean)
-
-
-def parse_overrides(text: str | dict | None) -> dict:
-    """Overrides given as a JSON object string (Luigi parameter) or a dict."""
-    if not text:
-        return {}
-    if isinstance(text, dict):
-        return dict(text)
-    try:
-        value = json.loads(text)
-    except ValueError as exc:
-        raise ValueError(f"not valid JSON ({exc}): {text!r}") from None
-    if not isinstance(value, dict):
-        raise ValueError(f"settings overrides must be a JSON object, got {text!r}")
-    return value
+def _overrides(cls_name: str, flag: str) -> dataclasses.Field:
+    return dataclasses.field(default="", metadata={"flag": flag, "help": f"JSON object of {cls_name} overrides"})
 
 
 @dataclasses.dataclass(frozen=True)
 class BuildSettings:
     """Everything a dataset build depends on. Paths are not part of any hash."""
 
-    source: str = "procedural"
-    models_per_category: int = 16  # 0 = every model of the source
-    views: int = 4
-    variants: int = 2
-    image_size: int = 256  # render size; sketches are written at out_size
-    out_size: int = 128
-    seed: int = 0
-    prepare_overrides: str = ""  # JSON objects of further per-stage settings
-    render_overrides: str = ""
-    augment_overrides: str = ""
-    shard_overrides: str = ""
-    work_dir: Path = DEFAULT_WORK_DIR
-    dataset_dir: Path = DEFAULT_DATASET_DIR
-    batch_size: int = 16  # models per Luigi batch task; changes scheduling only, never outputs
+    # The stage settings a build names directly take their defaults from the stage classes: one
+    # default per setting. Flags and Luigi parameters are made from these fields (help: comments).
+    source: str = "procedural"  # 'procedural' or a ShapeNet / <root>/<category>/ folder
+    models_per_category: int = 16  # models per category (0 = all)
+    views: int = RenderSettings.views  # rendered views per model
+    variants: int = AugmentSettings.variants  # pencil variants per view
+    image_size: int = RenderSettings.image_size  # render size in pixels; sketches are written at out_size
+    out_size: int = AugmentSettings.out_size  # sketch size in pixels
+    seed: int = PrepareSettings.seed  # seeds every stage (sampling, cameras, pencil, splits)
+    # JSON objects of further per-stage settings; the flags keep their historical names
+    prepare_overrides: str = _overrides("PrepareSettings", "prepare_settings")
+    render_overrides: str = _overrides("RenderSettings", "render_settings")
+    augment_overrides: str = _overrides("AugmentSettings", "augment_settings")
+    shard_overrides: str = _overrides("ShardSettings", "shard_settings")
+    work_dir: Path = DEFAULT_WORK_DIR  # stage outputs, keyed by settings (never part of a hash)
+    dataset_dir: Path = DEFAULT_DATASET_DIR  # shards and manifest.json
+    batch_size: int = dataclasses.field(default=16, metadata={
+        "help": "models per batch task", "significant": False})  # scheduling only, never outputs
 
     # ---- per-stage settings
     @property
     def limit(self) -> int | None:
         return self.models_per_category if self.models_per_category > 0 else None
 
-    def prepare_settings(self):
-        from pipeline.prepare.settings import PrepareSettings
+    def prepare_settings(self) -> PrepareSettings:
+        return from_dict(PrepareSettings, {"seed": self.seed, **parse_json_object(self.prepare_overrides)})
 
-        return _replace(PrepareSettings(seed=self.seed), parse_overrides(self.prepare_overrides))
+    def render_settings(self) -> RenderSettings:
+        return from_dict(RenderSettings, {"views": self.views, "image_size": self.image_size,
+                                          **parse_json_object(self.render_overrides)})
 
-    def render_settings(self):
-        from render.settings import RenderSettings
-
-        return _replace(RenderSettings(views=self.views, image_size=self.image_size),
-                        parse_overrides(self.render_overrides))
-
-    def augment_settings(self):
-        from augment.settings import AugmentSettings
-
-        return _replace(AugmentSettings(variants=self.variants, out_size=self.out_size),
-                        parse_overrides(self.augment_overrides))
+    def augment_settings(self) -> AugmentSettings:
+        return from_dict(AugmentSettings, {"variants": self.variants, "out_size": self.out_size,
+                                           **parse_json_object(self.augment_overrides)})
 
     def shard_settings(self) -> ShardSettings:
-        return _replace(ShardSettings(), parse_overrides(self.shard_overrides))
+        return from_dict(ShardSettings, parse_json_object(self.shard_overrides))
 
     # ---- source
     @property

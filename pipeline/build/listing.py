@@ -18,8 +18,9 @@ import os
 import stat
 from pathlib import Path
 
+from pipeline.build.settings import BuildSettings
 from pipeline.core.atomic import read_json, write_json
-from pipeline.dataset.build_settings import BuildSettings
+from pipeline.core.records import ModelRef
 from pipeline.core.stage_keys import settings_hash
 from pipeline.sources.mesh_io import sha256_file
 
@@ -116,3 +117,18 @@ def read_listing(s: BuildSettings, category: str, key: str) -> dict:
     if s.is_procedural:
         return _procedural(s, category)
     return _read_cached(str(list_path(s, category, key)))
+
+
+def model_ref(category: str, m: dict) -> ModelRef:
+    """A list entry as the stages see it: named by its work id (its output folder and seed key)."""
+    return ModelRef(category, m["work_id"], Path(m["path"]), m["source"])
+
+
+def listed_models(s: BuildSettings, category: str) -> list[ModelRef]:
+    """The category's models as a build hands them to the stages (procedural meshes are made
+    first when missing): for sheets and previews that run stages outside a build."""
+    if s.is_procedural:
+        from pipeline.sources.layouts import list_models
+
+        list_models(s.source, category, s.limit, s.seed, Path(s.work_dir))  # writes the meshes
+    return [model_ref(category, m) for m in current_listing(s, category)["models"]]

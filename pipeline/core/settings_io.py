@@ -1,0 +1,237 @@
+"""Settings dataclasses as the one place a setting is typed: dicts (JSON, checkpoints, job files)
+are turned back into settings by ``from_dict``, and command lines are made from the fields by
+``add_arguments`` / ``from_args`` (Luigi parameters: ``workflows.params``).
+
+A field's help is its ``metadata["help"]``, else the comment at the end of its line in the class
+body; ``metadata["flag"]`` renames its command-line flag (``n_points`` is ``--points``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import inspect
+import io
+import json
+import tokenize
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class SettingError(ValueError):
+    """A value that does not fit a setting; ``field`` names it (``None``: the whole object)."""
+
+    def __init__(self, message: str, owner: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.owner, self.field = owner, field
+
+
+# ---------------------------------------------------------------- types
+
+@functools.lru_cache(maxsize=None)
+def field_types(cls: type) -> dict[str, Any]:
+    """Each field's resolved type (annotations are strings under ``from __future__``)."""
+    return typing.get_type_hints(cls)
+
+
+def _optional_inner(tp: Any) -> Any | None:
+    """``X`` for ``X | None`` / ``Optional[X]``, else None."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return args[0]
+    return None
+
+
+def _kind(tp: Any) -> str:
+    inner = _optional_inner(tp)
+    if inner is not None:
+        return f"{_kind(inner)} or null"
+    if typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return "a list"
+        return f"a list of {len(args)} values"
+    return {bool: "true/false", int: "an integer", float: "a number", str: "a string",
+            Path: "a path"}.get(tp, getattr(tp, "__name__", str(tp)))
+
+
+def _convert(owner: str, name: str, tp: Any, value: Any, current: Any = None) -> Any:
+    """``value`` as a ``tp``, or SettingError naming ``owner.name``. Lists become tuples, ints
+    become floats where a number is expected (so equal settings hash equally), dicts become
+    nested settings (overriding ``current`` field by field when it is one)."""
+    def bad() -> SettingError:
+        return SettingError(f"{owner}.{name} must be {_kind(tp)}, got {value!r}", owner, name)
+
+    inner = _optional_inner(tp)
+    if inner is not None:
+        if value is None:
+            return None
+        try:
+            return _convert(owner, name, inner, value, current)
+        except SettingError:
+            if inner in (bool, int, float, str, Path):
+                raise bad() from None  # "an integer or null"
+            raise
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise bad()
+        try:
+            return from_dict(tp, value, base=current if isinstance(current, tp) else None)
+        except SettingError as exc:  # name the nested setting from the outer one
+            raise SettingError(f"{owner}.{name}: {exc}", owner, name) from None
+    if typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise bad()
+        if len(args) == 2 and args[1] is Ellipsis:
+            item_types = [args[0]] * len(value)
+        elif len(value) != len(args):
+            raise bad()
+        else:
+            item_types = list(args)
+        return tuple(_convert(owner, f"{name}[{i}]", t, v) for i, (t, v) in enumerate(zip(item_types, value)))
+    if tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is float:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        ok = isinstance(value, float)
+    elif tp is str:
+        ok = isinstance(value, str)
+    elif tp is Path:
+        if isinstance(value, str):
+            return Path(value)
+        ok = isinstance(value, Path)
+    else:
+        ok = True  # a type this module does not know: the class's own checks decide
+    if not ok:
+        raise bad()
+    return value
+
+
+# ---------------------------------------------------------------- dicts
+
+def from_dict(cls: type[T], data: dict, base: T | None = None) -> T:
+    """An instance of the frozen dataclass ``cls`` from ``data`` (e.g. parsed JSON), every value
+    type-checked against its field's type; fields not in ``data`` keep ``base``'s values (default:
+    the class defaults). Unknown keys, mistyped values and values the class's own checks refuse
+    raise SettingError naming the setting."""
+    owner = cls.__name__
+    if not isinstance(data, dict):
+        raise SettingError(f"{owner} must be a JSON object of settings, got {data!r}", owner)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        raise SettingError(f"{owner} has no setting {unknown[0]!r}; it has: {', '.join(fields)}", owner, unknown[0])
+    types_ = field_types(cls)
+    clean = {}
+    for name, value in data.items():
+        try:
+            clean[name] = _convert(owner, name, types_[name], value, getattr(base, name, None))
+        except SettingError as exc:
+            exc.field = name  # the setting itself, also when one of its items is wrong
+            raise
+    try:
+        return dataclasses.replace(base, **clean) if base is not None else cls(**clean)
+    except TypeError as exc:  # a required field missing
+        raise SettingError(f"{owner}: {exc}", owner) from None
+
+
+def parse_json_object(text: str | dict | None) -> dict:
+    """A JSON object given as text (a command-line or Luigi parameter) or already as a dict."""
+    if not text:
+        return {}
+    if isinstance(text, dict):
+        return dict(text)
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"not valid JSON ({exc}): {text!r}") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"settings overrides must be a JSON object, got {text!r}")
+    return value
+
+
+# ---------------------------------------------------------------- command lines
+
+@functools.lru_cache(maxsize=None)
+def field_comments(cls: type) -> dict[str, str]:
+    """The comment ending each field's line in ``cls``'s body (``x: int = 3  # what x is``)."""
+    try:
+        lines = inspect.getsource(cls)
+    except (OSError, TypeError):
+        return {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    out: dict[str, str] = {}
+    first_on_line: dict[int, str] = {}
+    for tok in tokenize.generate_tokens(io.StringIO(lines).readline):
+        if tok.type == tokenize.NAME and tok.start[0] not in first_on_line:
+            first_on_line[tok.start[0]] = tok.string
+        elif tok.type == tokenize.COMMENT and first_on_line.get(tok.start[0]) in names:
+            out.setdefault(first_on_line[tok.start[0]], tok.string.lstrip("#").strip())
+    return out
+
+
+def field_help(cls: type, field: dataclasses.Field) -> str:
+    return field.metadata.get("help") or field_comments(cls).get(field.name, "")
+
+
+def flag_name(field: dataclasses.Field) -> str:
+    """The field's parameter name on command lines (``--`` + this with ``-`` for ``_``)."""
+    return field.metadata.get("flag", field.name)
+
+
+def field_default(field: dataclasses.Field) -> Any:
+    """The default value, or ``dataclasses.MISSING`` for a required field."""
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return field.default
+
+
+def cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[dataclasses.Field]:
+    """The fields a command line offers: all but ``skip`` and nested settings."""
+    types_ = field_types(cls)
+    return [f for f in dataclasses.fields(cls)
+            if f.name not in skip and not dataclasses.is_dataclass(types_[f.name])]
+
+
+def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:
+    """One ``--flag`` per field of ``cls`` (not ``skip``), typed, defaulted and explained by the
+    field. Booleans are switches (``--x`` / ``--no-x``), tuples take several values."""
+    types_ = field_types(cls)
+    for f in cli_fields(cls, skip):
+        tp, default = types_[f.name], field_default(f)
+        tp = _optional_inner(tp) or tp
+        flag = "--" + flag_name(f).replace("_", "-")
+        kw: dict[str, Any] = {"dest": f.name, "help": field_help(cls, f) or None}
+        if default is dataclasses.MISSING:
+            kw["required"] = True
+        else:
+            kw["default"] = default
+            if tp is not bool and default not in (None, ""):
+                kw["help"] = f"{kw['help'] or ''} (default: %(default)s)".strip()
+        if tp is bool:
+            kw["action"] = argparse.BooleanOptionalAction
+        elif typing.get_origin(tp) is tuple:
+            args = typing.get_args(tp)
+            kw["type"] = args[0]
+            kw["nargs"] = "+" if len(args) == 2 and args[1] is Ellipsis else len(args)
+        else:
+            kw["type"] = tp if tp in (int, float, Path) else str
+        parser.add_argument(flag, **kw)
+
+
+def from_args(cls: type[T], args: argparse.Namespace, skip: tuple[str, ...] = (), **extra: Any) -> T:
+    """The settings a namespace filled by ``add_arguments(parser, cls, skip)`` holds, plus ``extra``."""
+    data = {f.name: getattr(args, f.name) for f in cli_fields(cls, skip)}
+    return from_dict(cls, {**data, **extra})
