@@ -9,7 +9,6 @@ into a temporary folder. Prints medians in milliseconds; one core (OMP_NUM_THREA
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import statistics
 import sys

@@ -6,7 +6,6 @@ Slow: procedural models of several categories (prepare + render + augment).
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -3,7 +3,6 @@ shards, the patch mask in every loss term, and part groups in Chamfer / normal t
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import luigi
 import numpy as np
@@ -16,7 +15,7 @@ from pipeline.shapes import generate
 from pipeline.dataset.shards import list_shards
 from train.data import DataSettings, collate, decode_sample
 from train.losses import Groups, chamfer_loss, match_points, normal_alignment_loss
-from train.losses.weights import LossWeights, template_weights
+from train.losses.weights import template_weights
 from train.objective import Objective
 from train.templates import load_template
 from workflows import BuildCategory

@@ -7,8 +7,6 @@ with a broken mesh.
 
 from __future__ import annotations
 
-import io
-import json
 import subprocess
 import sys
 import tarfile
