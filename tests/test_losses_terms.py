@@ -288,3 +288,63 @@ def test_collision_skips_absent_patches():
     mask = torch.tensor([[True, True], [True, False]])
     out = collision_loss(crossing, unconnected_pairs(2, grid=8), patch_mask=mask)
     assert out[0] > 0 and out[1] == 0
+
+
+def _thin_wall(n: int = 400):
+    """Target: a wall of thickness 0.04 (top at z=+0.02 facing +z, bottom at z=−0.02 facing −z);
+    patch samples facing +z just below the middle, i.e. nearer the bottom face."""
+    gen = torch.Generator().manual_seed(3)
+    xy = torch.rand(n, 2, generator=gen, dtype=torch.float64) - 0.5
+    top = torch.cat([xy, torch.full((n, 1), 0.02, dtype=torch.float64)], 1)
+    bottom = torch.cat([xy, torch.full((n, 1), -0.02, dtype=torch.float64)], 1)
+    target = torch.cat([top, bottom])[None]
+    normals = torch.cat([torch.tensor([[0, 0, 1.0]]).expand(n, 3), torch.tensor([[0, 0, -1.0]]).expand(n, 3)])
+    normals = normals.double()[None]
+    g = torch.linspace(-0.3, 0.3, 10, dtype=torch.float64)
+    xx, yy = torch.meshgrid(g, g, indexing="ij")
+    pts = torch.stack([xx, yy, torch.full_like(xx, -0.01)], -1).reshape(1, 1, -1, 3).requires_grad_(True)
+    pn = torch.tensor([0, 0, 1.0], dtype=torch.float64).expand(pts.shape)
+    return pts, pn, target, normals
+
+
+def test_normal_aware_matching_keeps_partners_on_the_facing_side_of_a_thin_wall():
+    pts, pn, target, normals = _thin_wall()
+    jac = torch.ones(pts.shape[:3], dtype=torch.float64)
+    plain = match_points(pts, target)
+    aware = match_points(pts, target, normals=(pn, normals), normal_weight=0.1)
+    # plain: the nearer (bottom, facing away) face; aware: the top face, which faces the same way
+    assert (normals[0, plain.patch_to_target[0], 2] < 0).all()
+    assert (normals[0, aware.patch_to_target[0], 2] > 0).all()
+    flat_pts = pts.reshape(1, -1, 3)
+
+    def patch_side_z_grad(m):  # gradient of the patch → target half of L_Ch
+        d = (flat_pts - target[0, m.patch_to_target[0]][None]).norm(dim=-1).mean()
+        return torch.autograd.grad(d, pts)[0][..., 2]
+
+    # descending the plain loss pushes the upward-facing patch down through the wall, the aware one up
+    assert (patch_side_z_grad(plain) > 0).all() and (patch_side_z_grad(aware) < 0).all()
+    assert torch.isfinite(chamfer_loss(pts, jac, target, matches=aware)).all()
+    # the aware normal term sees agreeing normals; the plain one pairs opposite ones (‖n − n'‖² = 4)
+    flat = pn.reshape(1, 1, -1, 3)
+    assert normal_alignment_loss(flat, jac, normals, aware).item() < normal_alignment_loss(flat, jac, normals, plain).item()
+    with pytest.raises(ValueError):
+        match_points(pts, target, normal_weight=0.1)
+
+
+def test_objective_uses_normal_aware_matching_in_training_only():
+    from train.objective import Objective
+
+    t = sphere24()
+    obj = Objective(t, n_points=600, match_normals=0.5)
+    gen = torch.Generator().manual_seed(1)
+    params = t.initial_params()[None] + 0.05 * torch.randn(1, t.initial_params().numel(), generator=gen)
+    pts = torch.randn(1, 600, 3, generator=gen)
+    pts = pts / pts.norm(dim=-1, keepdim=True)
+    batch = {"points": torch.cat([pts, -pts], -1), "meta": [{}]}  # normals pointing inwards: aware ≠ plain
+    w = LossWeights(normal=0.0, flat=0.0, collision=0.0)
+    st = obj.sample_st(None)
+    train_aware = obj.batch_terms(params, batch, st, w)["chamfer"]
+    metric = obj.batch_terms(params, batch, st, w, training=False)["chamfer"]
+    plain = Objective(t, n_points=600).batch_terms(params, batch, st, w)["chamfer"]
+    torch.testing.assert_close(metric, plain)
+    assert train_aware.item() > plain.item() + 1e-3

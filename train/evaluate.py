@@ -45,7 +45,7 @@ def batch_metrics(
     target, target_n = points[..., :3], points[..., 3:]
     mask = objective.patch_mask(batch["meta"], params.device)
     weights = LossWeights(symmetry=0.0)
-    terms = objective.batch_terms(params, batch, objective.sample_st(None), weights, grouped=False)
+    terms = objective.batch_terms(params, batch, objective.sample_st(None), weights, training=False)
     out = {k: terms[k] for k in LOSS_METRICS}
     patches = objective.template.patches_from_params(params)
     # peers' metrics on area-uniform samples of the present patches, as many as the target has

@@ -63,6 +63,8 @@ class FitSettings:
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
     device: str | None = None  # default: cuda when present, else cpu
+    match_normals: float = _arg(0.0, "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
+                                "(0: nearest point; try 0.1 for thin-walled shapes, docs/train.md)")
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:
@@ -112,7 +114,7 @@ def validation_chamfer(model: SketchToPatches, loader, objective: Objective, dev
     st = objective.sample_st(None)
     for batch in loader:
         params = model(batch["images"].to(device), batch["view_mask"].to(device))
-        terms = objective.batch_terms(params, batch, st, weights, grouped=False)
+        terms = objective.batch_terms(params, batch, st, weights, training=False)
         total += float(terms["chamfer"].sum())
         count += params.shape[0]
     model.train(was_training)
@@ -160,7 +162,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         optimizer.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
     net: torch.nn.Module = DistributedDataParallel(model) if info.enabled else model
-    objective = Objective(template, settings.n_points)
+    objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
     data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size)
     if template.symmetry is not None:
         data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))

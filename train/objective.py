@@ -25,8 +25,9 @@ from train.templates import Template
 class Objective:
     """Loss terms of a template's patches against target points, per batch item."""
 
-    def __init__(self, template: Template, n_points: int = 7000, collision_grid: int = 8):
+    def __init__(self, template: Template, n_points: int = 7000, collision_grid: int = 8, match_normals: float = 0.0):
         self.template = template
+        self.match_normals = match_normals  # λ of normal-aware matching in training (metrics: plain)
         self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
         self.pairs = collision_pairs(template, grid=collision_grid)
         self.sym = template.symmetry_pairs()
@@ -89,18 +90,19 @@ class Objective:
         return used[:, sym[:, 0]] & used[:, sym[:, 1]]
 
     def batch_terms(
-        self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, grouped: bool = True
+        self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, training: bool = True
     ) -> dict[str, Tensor]:
-        """``terms`` for a loader batch: target points, patch mask and (training: ``grouped``) part
-        groups from the batch. Metrics use ``grouped=False``: the plain L_Ch, comparable across
-        templates."""
+        """``terms`` for a loader batch: target points, patch mask and (``training``) part groups
+        and normal-aware matching. Metrics use ``training=False``: the plain L_Ch (nearest points,
+        no groups), comparable across templates and settings."""
         dev = params.device
         return self.terms(params, batch["points"].to(dev), st, self.patch_mask(batch["meta"], dev), weights,
-                          self.groups(batch, dev) if grouped else None)  # fmt: skip
+                          self.groups(batch, dev) if training else None,
+                          self.match_normals if training else 0.0)  # fmt: skip
 
     def terms(
         self, params: Tensor, points: Tensor, st: Tensor, mask: Tensor | None, weights: LossWeights,
-        groups: Groups | None = None,
+        groups: Groups | None = None, match_normals: float = 0.0,
     ) -> dict[str, Tensor]:  # fmt: skip
         """Each term per batch item (B,) for network outputs ``params (B, D)`` and target
         ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped."""
@@ -113,7 +115,7 @@ class Objective:
             patch_mask=mask, template_normals=template_normals,
             control_points=self.template.points_from_params(params) if self.sym.numel() else None,
             symmetry_pairs=self.sym if self.sym.numel() else None, symmetry_valid=self.symmetry_valid(mask),
-            plane_x=self.plane_x, collision=self.pairs, groups=groups,
+            plane_x=self.plane_x, collision=self.pairs, groups=groups, match_normals=match_normals,
         )  # fmt: skip
 
 

@@ -66,15 +66,34 @@ def _flat(x: Tensor, tail: int) -> Tensor:
 
 
 def match_points(
-    patch_points: Tensor, target_points: Tensor, valid: Tensor | None = None, groups: Groups | None = None
+    patch_points: Tensor,
+    target_points: Tensor,
+    valid: Tensor | None = None,
+    groups: Groups | None = None,
+    normals: tuple[Tensor, Tensor] | None = None,
+    normal_weight: float = 0.0,
 ) -> Matches:
     """Nearest neighbours both ways. ``patch_points (B, P, S, 3)`` flattened to ``(B, Q, 3)``;
     ``valid (B, P, S)`` excludes samples (e.g. patches of an absent optional part); ``groups``
-    keeps matches inside part groups."""
+    keeps matches inside part groups.
+
+    Normal-aware matching: with ``normal_weight`` λ > 0 and ``normals`` = (patch normals
+    ``(B, P, S, 3)``, target normals ``(B, M, 3)``) the search runs on (x, λ·n), so a point is
+    matched to the nearest point *facing the same way*. On a thin wall the nearest target point
+    of a patch is often on the far side (opposite normal); plain matching then pulls the patch
+    through the wall. Opposite normals add 2λ to the search distance, so λ above the half wall
+    thickness keeps matches on the near side. Only the choice of partner changes: the losses
+    still measure plain 3-D distances to it."""
     pp = _flat(patch_points, 1).detach()
     target = target_points.detach()
     if groups is not None:
         pp, target = _shifted(pp, groups.per_sample(patch_points)), _shifted(target, groups.target)
+    if normal_weight > 0:
+        if normals is None:
+            raise ValueError("normal-aware matching needs patch and target normals")
+        pn, tn = normals
+        pp = torch.cat([pp, normal_weight * _flat(pn, 1).detach().to(pp.dtype)], -1)
+        target = torch.cat([target, normal_weight * tn.detach().to(target.dtype)], -1)
     search = pp
     if valid is not None:
         search = torch.where(_flat(valid, 0)[..., None], search, torch.full_like(search, _FAR))

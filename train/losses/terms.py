@@ -40,6 +40,7 @@ class TermInputs:
     plane_x: float = 0.0
     collision: CollisionPairs | None = None
     groups: Groups | None = None
+    match_normals: float = 0.0  # λ of normal-aware matching (0: nearest point, the paper's metric)
 
     @functools.cached_property
     def ev(self) -> PatchSamples:
@@ -52,7 +53,8 @@ class TermInputs:
 
     @functools.cached_property
     def matches(self) -> Matches:
-        return match_points(self.ev.points, self.target_points, self.valid, self.groups)
+        normals = (self.ev.normals, self.target_normals) if self.match_normals else None
+        return match_points(self.ev.points, self.target_points, self.valid, self.groups, normals, self.match_normals)
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ def loss_terms(
     plane_x: float = 0.0,
     collision: CollisionPairs | None = None,
     groups: Groups | None = None,
+    match_normals: float = 0.0,
 ) -> dict[str, Tensor]:
     """Each unweighted term of the loss per batch item ``(B,)``, keyed by ``TERMS`` (the term table,
     ``train.losses.terms``).
@@ -59,11 +60,12 @@ def loss_terms(
     ``template_normals`` are the template's normals at the same ``st``;
     ``control_points (B, N, 3)`` + ``symmetry_pairs (K, 2)`` feed the symmetry term;
     ``collision`` pairs feed the collision term; ``groups`` splits Chamfer and normal terms by
-    part group. A term whose weight is 0 or whose inputs are
+    part group; ``match_normals`` > 0 pairs points by position and normal (``match_points``).
+    A term whose weight is 0 or whose inputs are
     missing is skipped (reported as 0), which is how ablations save time.
     """
     x = TermInputs(patches, st, target_points, target_normals, patch_mask, template_normals, control_points,
-                   symmetry_pairs, symmetry_valid, plane_x, collision, groups)
+                   symmetry_pairs, symmetry_valid, plane_x, collision, groups, match_normals)
     zero = patches.new_zeros(patches.shape[0])
     terms: dict[str, Tensor] = {}
     for term in LOSS_TERMS:
