@@ -12,7 +12,7 @@ from train.templates.from_cuboids import TemplateSettings, template_from_boxes
 from train.templates.lattice import Box, boundary_quads, build_lattice, edge_use_counts, euler_characteristic as quad_euler
 from train.templates.median import chamfer_matrix, median_index
 from train.templates.merge import merge_quads, rects_from_quads
-from train.templates.part_boxes import hollow_cup, handle_loop
+from train.templates.part_boxes import WALL, BOTTOM, hollow_box, handle_loop
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
 
@@ -23,7 +23,7 @@ def B(label, lo, hi):
 
 def mug_boxes():
     cup = B("cup", [-0.5, -0.5, -0.5], [0.5, 0.5, 0.5])
-    return hollow_cup(cup) + handle_loop(B("handle", [-0.05, -0.3, 0.4], [0.05, 0.3, 0.8]), cup)
+    return hollow_box(cup, WALL, BOTTOM) + handle_loop(B("handle", [-0.05, -0.3, 0.4], [0.05, 0.3, 0.8]), cup)
 
 
 def quad_mesh_is_manifold(quads):

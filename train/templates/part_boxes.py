@@ -4,6 +4,9 @@ Labels lose their side and instance suffixes ("wing_l", "engine0_r" → "wing", 
 part and its mirror image share a label. Mugs are refined as the paper describes: the cup's box
 becomes four walls and a bottom (an interior void open at the top) and the handle's box becomes
 three bars that close a loop with the cup wall (a hole in the handle), so the template has genus 1.
+Bathtubs likewise: the paper builds them from five cuboids, the tub's box becomes a floor and four
+walls, so the template has the basin (a closed box cannot: a Coons patch spanning the rim is
+fixed by its boundary curves and cannot dip into the basin, so training folds it in).
 """
 
 from __future__ import annotations
@@ -18,12 +21,17 @@ from train.templates.lattice import Box, CuboidLike
 WALL = 0.12  # cup wall thickness, fraction of the cup's half-width
 BOTTOM = 0.12  # cup bottom thickness, fraction of its height
 BAR = 0.25  # handle bar thickness, fraction of the handle's reach / height
+# bathtub wall / floor (procedural tubs: wall 0.04–0.09 on half-widths 0.28–0.55, floor ~ 1/5 of the height)
+TUB_WALL = 0.18
+TUB_BOTTOM = 0.2
 
 
 def category_boxes(category: str, cuboids: Sequence[CuboidLike]) -> list[Box]:
     boxes = [Box(base_label(c.label), np.asarray(c.lo, float), np.asarray(c.hi, float)) for c in cuboids]
     if category == "mug":
         boxes = _mug(boxes)
+    if category == "bathtub":
+        boxes = [b2 for b in boxes for b2 in (hollow_box(b, TUB_WALL, TUB_BOTTOM) if b.label == "tub" else [b])]
     return boxes
 
 
@@ -33,23 +41,24 @@ def _mug(boxes: list[Box]) -> list[Box]:
         return boxes
     cup = cups[0]
     out = [b for b in boxes if b.label not in ("cup", "handle")]
-    out += hollow_cup(cup)
+    out += hollow_box(cup, WALL, BOTTOM)
     for h in (b for b in boxes if b.label == "handle"):
         out += handle_loop(h, cup)
     return out
 
 
-def hollow_cup(cup: Box) -> list[Box]:
-    """Bottom slab plus four walls: the union is a box with a void open at the top."""
-    lo, hi = cup.lo, cup.hi
-    w = WALL * 0.5 * min(hi[0] - lo[0], hi[2] - lo[2])
-    b = BOTTOM * (hi[1] - lo[1])
+def hollow_box(box: Box, wall: float, bottom: float) -> list[Box]:
+    """Bottom slab plus four walls: the union is ``box`` with a void open at the top (y up).
+    ``wall``: thickness as a fraction of the smaller horizontal half-extent; ``bottom``: of the height."""
+    lo, hi, label = box.lo, box.hi, box.label
+    w = wall * 0.5 * min(hi[0] - lo[0], hi[2] - lo[2])
+    b = bottom * (hi[1] - lo[1])
     return [
-        Box("cup", lo.copy(), np.array([hi[0], lo[1] + b, hi[2]])),
-        Box("cup", lo.copy(), np.array([lo[0] + w, hi[1], hi[2]])),
-        Box("cup", np.array([hi[0] - w, lo[1], lo[2]]), hi.copy()),
-        Box("cup", lo.copy(), np.array([hi[0], hi[1], lo[2] + w])),
-        Box("cup", np.array([lo[0], lo[1], hi[2] - w]), hi.copy()),
+        Box(label, lo.copy(), np.array([hi[0], lo[1] + b, hi[2]])),
+        Box(label, lo.copy(), np.array([lo[0] + w, hi[1], hi[2]])),
+        Box(label, np.array([hi[0] - w, lo[1], lo[2]]), hi.copy()),
+        Box(label, lo.copy(), np.array([hi[0], hi[1], lo[2] + w])),
+        Box(label, np.array([lo[0], lo[1], hi[2] - w]), hi.copy()),
     ]
 
 
