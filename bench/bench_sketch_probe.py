@@ -21,9 +21,8 @@ import torch
 
 from pipeline.core.schema import PRESENT_PARTS
 from train.data import DataSettings, make_loader
-from train.fit import load_checkpoint, model_from_checkpoint
+from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
 from train.model import SketchToPatches
-from train.templates import load_template
 
 
 @torch.no_grad()
@@ -69,7 +68,7 @@ def main() -> None:
     torch.set_num_threads(1)
     ckpt = load_checkpoint(a.checkpoint)
     s = ckpt["settings"]
-    tpl = load_template(s["template"])
+    tpl = template_from_checkpoint(ckpt)
     if a.pixels:
         model = None
     elif a.init:

@@ -21,15 +21,14 @@ import torch
 import webdataset as wds
 
 from train.data import read_png, sketch_table, to_network
-from train.fit import load_checkpoint, model_from_checkpoint
-from train.templates import load_template
+from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
 
 
 @torch.no_grad()
 def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64) -> dict[str, float]:
     ckpt = load_checkpoint(checkpoint)
     s = ckpt["settings"]
-    template = load_template(s["template"])
+    template = template_from_checkpoint(ckpt)
     model = model_from_checkpoint(ckpt, template)
     urls = sorted(glob.glob(str(Path(dataset) / s["category"] / f"{split}-*.tar")))
     images = {"v0a": [], "v0b": [], "v1a": []}  # view 0 variant 0 / view 0 variant 1 / view 1 variant 0

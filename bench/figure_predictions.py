@@ -22,17 +22,16 @@ from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from train.data import read_png, sketch_table, to_network
-from train.fit import load_checkpoint, model_from_checkpoint
+from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
 from train.geometry.triangulate import welded_mesh
 from train.objective import Objective
-from train.templates import load_template
 
 
 @torch.no_grad()
 def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256) -> np.ndarray:
     ckpt = load_checkpoint(checkpoint)
     s = ckpt["settings"]
-    template = load_template(s["template"])
+    template = template_from_checkpoint(ckpt)
     model = model_from_checkpoint(ckpt, template)
     objective = Objective(template, 500)
     urls = sorted(glob.glob(str(Path(dataset) / s["category"] / "test-*.tar")))

@@ -91,3 +91,19 @@ def test_validation_keeps_the_best_checkpoint(shards, tmp_path):
     best = load_checkpoint(out / "best.pt")
     assert best["val_chamfer"] == pytest.approx(min(vals.values()))
     assert best["step"] == min(vals, key=vals.get)
+
+
+def test_checkpoint_keeps_its_template_when_the_named_file_is_rebuilt(shards, tmp_path):
+    from train.fit import template_from_checkpoint
+    from train.templates import save_template
+
+    path = tmp_path / "tpl.json"
+    save_template(load_template("sphere24"), path)
+    out = tmp_path / "run"
+    fit(settings(shards, out, 1, template=str(path)), progress=False)
+    save_template(load_template("sphere54"), path)  # the file the run names is rebuilt, bigger
+    ck = load_checkpoint(out / "checkpoint.pt")
+    assert template_from_checkpoint(ck).num_patches == 24
+    res = evaluate(out / "checkpoint.pt", shards, "test")  # would fail loading 24-patch weights into 54
+    assert res["model"]["chamfer"] > 0
+    assert fit(settings(shards, out, 2, template=str(path)), progress=False)["step"] == 2  # resume too

@@ -21,13 +21,12 @@ import torch
 
 from pipeline.core.atomic import write_json
 from train.data import DataSettings, make_loader
-from train.fit import load_checkpoint, model_from_checkpoint
+from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
 from train.geometry.intersections import count_intersecting_pairs
 from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
 from train.objective import Objective
-from train.templates import load_template
 
 LOSS_METRICS = ("chamfer", "normal", "flat", "template_normal", "collision")
 PEER_METRICS = ("chamfer_sq_x1000", "normal_consistency")
@@ -91,7 +90,7 @@ def evaluate(
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``."""
     ckpt = load_checkpoint(checkpoint)
     s = ckpt["settings"]
-    template = load_template(s["template"])
+    template = template_from_checkpoint(ckpt)
     model = model_from_checkpoint(ckpt, template)
     objective = Objective(template, s["n_points"])
     names = metric_names(tuple(taus))

@@ -77,7 +77,7 @@ class FitSettings:
 
 def save_checkpoint(
     path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
-    val_chamfer: float | None = None,
+    val_chamfer: float | None = None, template: Template | None = None,
 ) -> None:
     with atomic_path(path) as tmp:
         torch.save(
@@ -88,6 +88,8 @@ def save_checkpoint(
                 "optimizer": optimizer.state_dict(),
                 "settings": dataclasses.asdict(settings),
                 "template": settings.template,
+                # the template itself: a rebuilt shipped template must not change what an old run means
+                "template_json": None if template is None else template.to_json(),
                 "num_params": model.num_params,
             },
             tmp,
@@ -96,6 +98,14 @@ def save_checkpoint(
 
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
     return torch.load(path, map_location=device, weights_only=False)
+
+
+def template_from_checkpoint(ckpt: dict) -> Template:
+    """The template the run trained with: the copy in the checkpoint, or (checkpoints from
+    before it was stored) the template named in its settings."""
+    if ckpt.get("template_json"):
+        return Template.from_json(ckpt["template_json"])
+    return load_template(ckpt["settings"]["template"])
 
 
 def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
@@ -148,13 +158,14 @@ def fit(settings: FitSettings, progress: bool = True) -> dict:
 
 def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     out = Path(settings.out)
-    template = load_template(settings.template)
+    ckpt_path, start = out / "checkpoint.pt", 0
+    ckpt = load_checkpoint(ckpt_path, info.device) if ckpt_path.exists() else None
+    # a resumed run keeps the template it started with, even if the named one was rebuilt since
+    template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params()).to(info.device)
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
-    ckpt_path, start = out / "checkpoint.pt", 0
-    if ckpt_path.exists():
-        ckpt = load_checkpoint(ckpt_path, info.device)
+    if ckpt is not None:
         saved = from_dict(FitSettings, ckpt["settings"])
         if saved.identity() != settings.identity():
             raise ValueError(f"{out}: existing run has different settings; use another --out")
@@ -202,14 +213,14 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             val = validation_chamfer(model, val_loader, objective, info.device)
             if val < best:
                 best = val
-                save_checkpoint(out / "best.pt", model, optimizer, done, settings, val_chamfer=val)
+                save_checkpoint(out / "best.pt", model, optimizer, done, settings, val_chamfer=val, template=template)
         if done % settings.log_every == 0 or done == settings.steps or val is not None:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
                 logger.log(done, last, {**row, "val_chamfer": "" if val is None else val}, time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
-            save_checkpoint(ckpt_path, model, optimizer, done, settings)
+            save_checkpoint(ckpt_path, model, optimizer, done, settings, template=template)
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.4f}")

@@ -28,10 +28,10 @@ from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
 from train.export.units import CadUnits
-from train.fit import load_checkpoint, model_from_checkpoint
+from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
 from train.geometry.intersections import Intersections, mesh_intersections
 from train.model import SketchToPatches
-from train.templates import FreePoint, JunctionPoint, Template, load_template, save_template
+from train.templates import FreePoint, JunctionPoint, Template, save_template
 
 
 def load_sketches(paths: list[str | Path], size: int) -> torch.Tensor:
@@ -49,7 +49,7 @@ def load_sketches(paths: list[str | Path], size: int) -> torch.Tensor:
 
 def load_predictor(checkpoint: str | Path) -> tuple[SketchToPatches, Template, dict]:
     ckpt = load_checkpoint(checkpoint)
-    template = load_template(ckpt["settings"]["template"])
+    template = template_from_checkpoint(ckpt)
     return model_from_checkpoint(ckpt, template), template, ckpt
 
 
