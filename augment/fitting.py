@@ -14,6 +14,13 @@ def cumulative_length(points: np.ndarray) -> np.ndarray:
     """Arc length at each vertex (first is 0)."""
     if len(points) < 2:
         return np.zeros(len(points))
+    if type(points) is np.ndarray and points.dtype == np.float64:
+        # called thousands of times per model on short strokes: the same sums with fewer
+        # temporaries (np.diff and np.concatenate cost more than the arithmetic here)
+        out = np.zeros(len(points))
+        d = points[1:] - points[:-1]
+        np.cumsum(np.hypot(d[:, 0], d[:, 1]), out=out[1:])
+        return out
     d = np.diff(points, axis=0)
     return np.concatenate([[0.0], np.cumsum(np.hypot(d[:, 0], d[:, 1]))])
 
@@ -27,8 +34,13 @@ def dedupe(points: np.ndarray, eps: float = 1e-6) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 2:
         return points
-    d = np.abs(np.diff(points, axis=0)).max(axis=1)
-    keep = np.concatenate([[True], d > eps])
+    keep = np.empty(len(points), bool)
+    keep[0] = True
+    if points.ndim == 2 and points.shape[1] == 2:  # the usual (K, 2): same test, fewer temporaries
+        d = np.abs(points[1:] - points[:-1])
+        np.greater(np.maximum(d[:, 0], d[:, 1]), eps, out=keep[1:])
+    else:
+        keep[1:] = np.abs(np.diff(points, axis=0)).max(axis=1) > eps
     return points[keep]
 
 

@@ -42,7 +42,10 @@ def _pressure(s: np.ndarray, taper: float, noise: np.ndarray, amount: float) -> 
     """Relative width along a stroke: smooth ramps at both ends times (1 + slow noise)."""
     length = s[-1] if len(s) else 0.0
     taper = max(min(taper, 0.5 * length), 1e-6)
-    ramp = lambda x: 0.45 + 0.55 * np.clip(x / taper, 0, 1) ** 2 * (3 - 2 * np.clip(x / taper, 0, 1))
+    def ramp(x: np.ndarray) -> np.ndarray:
+        c = np.clip(x / taper, 0, 1)
+        return 0.45 + 0.55 * c ** 2 * (3 - 2 * c)
+
     return ramp(s) * ramp(length - s) * (1.0 + amount * noise)
 
 
@@ -66,10 +69,11 @@ def _stroke_mask(pts: np.ndarray, half_width: np.ndarray, shape: tuple[int, int]
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
     turn = np.ones(len(pts), bool)
     turn[1:-1] = np.sum(d[:-1] * d[1:], axis=1) < 0.95
-    for i in np.flatnonzero(turn):
-        c = np.round(pts[i] * scale).astype(int)
-        cv2.circle(mask, (int(c[0]), int(c[1])), int(round(half_width[i] * scale)), 255, -1,
-                   cv2.LINE_8, _SHIFT)
+    at = np.flatnonzero(turn)
+    centers = np.round(pts[at] * scale).astype(int).tolist()
+    radii = np.round(half_width[at] * scale).astype(int).tolist()  # half to even, as round() is
+    for (cx, cy), r in zip(centers, radii):
+        cv2.circle(mask, (cx, cy), r, 255, -1, cv2.LINE_8, _SHIFT)
     return mask
 
 

@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
 from pipeline.core.atomic import read_json  # noqa: E402
+from pipeline.build.listing import current_listing  # noqa: E402
 from pipeline.build.settings import BuildSettings  # noqa: E402
 from pipeline.core.records import model_dir  # noqa: E402
 from pipeline.shapes import CATEGORIES  # noqa: E402
@@ -69,28 +70,28 @@ def write_corpus(root: Path, per_category: int, seed: int = 0) -> dict[str, int]
     return faces
 
 
-def run_stage(s: BuildSettings, stage: str, n_models: dict[str, int]) -> float:
+def run_stage(s: BuildSettings, stage: str, lists: dict[str, dict]) -> float:
     """Run one stage over every batch of every category; its CPU seconds."""
     c0 = cpu_seconds()
     for cat in CATEGORIES:
-        for b in range(steps.n_batches(n_models[cat], s.batch_size)):
+        for b in range(steps.n_batches(len(lists[cat]["models"]), s.batch_size)):
             t = time.perf_counter()
-            doc = getattr(steps, f"{stage}_step")(s, cat, b)
+            doc = getattr(steps, f"{stage}_step")(s, lists[cat], b)
             bad = [m for m in doc["models"] if m["status"] != "ok" and m["stage"] == stage]
             print(f"  {stage:8s} {cat:9s} batch {b}: {len(doc['models']) - len(bad)} ok, {len(bad)} failed,"
                   f" {time.perf_counter() - t:.1f} s wall", flush=True)
     if stage == "augment":
         for cat in CATEGORIES:
-            steps.shards_step(s, cat)
+            steps.shards_step(s, lists[cat])
     return cpu_seconds() - c0
 
 
-def view_figures(s: BuildSettings, n_models: dict[str, int]) -> dict:
+def view_figures(s: BuildSettings, lists: dict[str, dict]) -> dict:
     """Per-view CPU seconds and per-model set-up from the render records."""
     views, loads, n_views = [], [], []
     for cat in CATEGORIES:
-        for ref in steps.read_list(s, cat):
-            rec = read_json(model_dir(s.stage_dir("render"), cat, ref.model_id) / "record.json")
+        for m in lists[cat]["models"]:
+            rec = read_json(model_dir(s.stage_dir("render"), cat, m["work_id"]) / "record.json")
             if rec.get("status") == "ok":
                 views += rec["timings"]["views_cpu_s"]
                 loads.append(rec["timings"]["load_s"])
@@ -99,13 +100,13 @@ def view_figures(s: BuildSettings, n_models: dict[str, int]) -> dict:
             "per_view_with_setup": statistics.median(views) + statistics.median(loads) / statistics.median(n_views)}
 
 
-def f1_per_category(fs: BuildSettings, em: BuildSettings) -> dict[str, list[float]]:
+def f1_per_category(fs: BuildSettings, em: BuildSettings, lists: dict[str, dict]) -> dict[str, list[float]]:
     """Stroke F1 (2 px) of every embree view against Freestyle's, by category."""
     out: dict[str, list[float]] = {}
     for cat in CATEGORIES:
-        for ref in steps.read_list(fs, cat):
-            a = model_dir(fs.stage_dir("render"), cat, ref.model_id) / "strokes.json"
-            b = model_dir(em.stage_dir("render"), cat, ref.model_id) / "strokes.json"
+        for m in lists[cat]["models"]:
+            a = model_dir(fs.stage_dir("render"), cat, m["work_id"]) / "strokes.json"
+            b = model_dir(em.stage_dir("render"), cat, m["work_id"]) / "strokes.json"
             if not (a.exists() and b.exists()):
                 continue
             da, db = read_json(a), read_json(b)
@@ -146,11 +147,11 @@ def main() -> int:
 
     backends = args.backends.split(",")
     first = settings(backends[0])
-    n_models = {cat: steps.write_source_list(first, cat) for cat in CATEGORIES}
-    total = sum(n_models.values())
-    prepare_s = run_stage(first, "prepare", n_models)
-    n_ok = sum(1 for cat in CATEGORIES for ref in steps.read_list(first, cat)
-               if (read_json(model_dir(first.stage_dir("prepare"), cat, ref.model_id) / "record.json") or {})
+    lists = {cat: current_listing(first, cat) for cat in CATEGORIES}
+    total = sum(len(lst["models"]) for lst in lists.values())
+    prepare_s = run_stage(first, "prepare", lists)
+    n_ok = sum(1 for cat in CATEGORIES for m in lists[cat]["models"]
+               if (read_json(model_dir(first.stage_dir("prepare"), cat, m["work_id"]) / "record.json") or {})
                .get("status") == "ok")
     results = {"models": total, "prepared_ok": n_ok, "views": args.views, "variants": args.variants,
                "triangles": {"min": sizes[0], "median": sizes[len(sizes) // 2], "max": sizes[-1]},
@@ -158,16 +159,16 @@ def main() -> int:
     print(f"prepare: {prepare_s:.1f} core-s, {prepare_s / total:.3f} per model ({n_ok}/{total} ok)", flush=True)
     for backend in backends:
         s = settings(backend)
-        render_s = run_stage(s, "render", n_models)
-        augment_s = run_stage(s, "augment", n_models)  # includes the category shards
+        render_s = run_stage(s, "render", lists)
+        augment_s = run_stage(s, "augment", lists)  # includes the category shards
         per = {"prepare": prepare_s / total, "render": render_s / total, "augment+shards": augment_s / total}
         per["all"] = sum(per.values())
         per["shapenet_core_hours"] = per["all"] * SHAPENET_MODELS / 3600
-        per.update(view_figures(s, n_models))
+        per.update(view_figures(s, lists))
         results["backends"][backend] = per
         print(f"{backend}: " + ", ".join(f"{k} {v:.3f}" for k, v in per.items()), flush=True)
     if {"embree", "freestyle"} <= set(backends):
-        f1 = f1_per_category(settings("freestyle"), settings("embree"))
+        f1 = f1_per_category(settings("freestyle"), settings("embree"), lists)
         results["f1"] = {cat: {"views": len(v), "median": statistics.median(v), "min": min(v),
                                "mean": float(np.mean(v))} for cat, v in f1.items()}
         fs, em = results["backends"]["freestyle"], results["backends"]["embree"]

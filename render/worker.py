@@ -28,6 +28,7 @@ from pipeline.core.stage_keys import settings_hash
 from pipeline.core.errors import ModelError
 from pipeline.core.model_loop import FATAL_ERRORS, ModelJob, run_models
 from pipeline.core.images import encode_png
+from pipeline.core.plain_ply import read_plain_ply
 from pipeline.core.schema import CAMERAS_FILE, STROKES_FILE, view_name
 from render import cameras
 from render.job import FATAL_EXIT, PARENT_ENV, PROGRESS_PREFIX, fatal_to_json, read_job
@@ -35,18 +36,28 @@ from render.settings import RenderSettings
 
 
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (n,3) float64 and triangles (m,3) int64 of a mesh file, or ModelError."""
-    import trimesh
+    """Vertices (n,3) float64 and triangles (m,3) int64 of a mesh file, or ModelError.
 
+    The prepare stage's PLY is read with numpy alone (pipeline.core.plain_ply), so the embree
+    backend's worker never imports trimesh; any other file goes through trimesh."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(path, "mesh file not found")
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise ModelError(path, f"cannot read mesh: {type(exc).__name__}: {exc}") from None
-    vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), np.float64)
-    faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
+        plain = read_plain_ply(path)
+    except OSError:
+        plain = None  # trimesh below meets the same problem and names it
+    if plain is not None:
+        vertices, faces = plain
+    else:
+        import trimesh
+
+        try:
+            mesh = trimesh.load(str(path), force="mesh", process=False)
+        except Exception as exc:  # trimesh raises many types for corrupt files
+            raise ModelError(path, f"cannot read mesh: {type(exc).__name__}: {exc}") from None
+        vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), np.float64)
+        faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
     if len(vertices) == 0 or len(faces) == 0 or faces.ndim != 2 or faces.shape[1] != 3:
         raise ModelError(path, f"no triangles in mesh ({len(vertices)} vertices, {len(faces)} faces)")
     if not np.isfinite(vertices).all():
@@ -160,10 +171,10 @@ def run_job(job_path: Path) -> int:
     scratch = Path(job["scratch_dir"])
     scratch.mkdir(parents=True, exist_ok=True)
 
-    import trimesh  # noqa: F401  (imported here so its ~1 s counts as start-up, not model time)
-
     scene = recorder = None
     if settings.backend == "freestyle":
+        import trimesh  # noqa: F401  (imported here so its ~1 s counts as start-up, not model time)
+
         with thread_pool_limited(settings.threads):
             from render import scene as sc
             from render.capture import StrokeRecorder

@@ -21,6 +21,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from pipeline.core.canonical_json import canonical_dumps
+
 
 # errno → what the user should read (and do) when a write fails
 _STORAGE_PROBLEMS = {
@@ -121,8 +123,9 @@ def write_bytes(path: str | Path, data: bytes) -> None:
 
 
 def dumps_json(obj: Any) -> str:
-    """Canonical JSON (sorted keys, fixed separators) so equal content gives equal bytes."""
-    return json.dumps(obj, sort_keys=True, indent=1, default=_json_default) + "\n"
+    """Canonical JSON (sorted keys, fixed separators) so equal content gives equal bytes: the text
+    of ``json.dumps(obj, sort_keys=True, indent=1)``, written by pipeline.core.canonical_json."""
+    return canonical_dumps(obj, _json_default) + "\n"
 
 
 def write_json(path: str | Path, obj: Any) -> None:

@@ -55,8 +55,11 @@ def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction:
     mesh = trimesh.Trimesh(vertices, faces, process=True, validate=True)
     if len(mesh.faces) == 0:
         return mesh
-    parts = mesh.split(only_watertight=False)
-    if len(parts) > 1:
+    # counted before splitting: the split copies (and hole-fills) every part, wasted on the
+    # usual single-part envelope
+    n_parts = len(trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces))))
+    if n_parts > 1:
+        parts = mesh.split(only_watertight=False)
         areas = np.array([p.area for p in parts])
         keep = [p for p, a in zip(parts, areas) if a >= min_component_fraction * areas.max()]
         if len(keep) < len(parts):

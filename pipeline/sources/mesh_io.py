@@ -25,6 +25,7 @@ import trimesh
 
 from pipeline.core.atomic import write_bytes
 from pipeline.core.errors import ModelError
+from pipeline.core.plain_ply import read_plain_ply
 
 HEAD_BYTES = 4096
 _DENIED = "permission denied (check the owner and mode of the file and its folders)"
@@ -321,6 +322,9 @@ def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of a PLY written by write_ply, exactly as stored (no merging)."""
+    plain = read_plain_ply(path)
+    if plain is not None:
+        return plain
     mesh = trimesh.load(str(path), force="mesh", process=False)
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
 
