@@ -135,6 +135,21 @@ def _read_log(path: Path, upto: int) -> list[dict]:
         return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
 
 
+def train_step(
+    net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
+    weights: LossWeights, device: torch.device,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
+    """One optimisation step on a loader batch at samples ``st``: forward, the loss, backward, update.
+    Returns the batch loss and the per-item terms (``bench/bench_step_profile.py`` times this)."""
+    params = net(batch["images"].to(device), batch["view_mask"].to(device))
+    terms = objective.batch_terms(params, batch, st, weights)
+    loss = weighted_sum(terms, weights).mean()
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return loss, terms
+
+
 def fit(settings: FitSettings, progress: bool = True) -> dict:
     """Train (or resume) a run; returns {"step", "last_loss", "out"}. Works under torchrun."""
     info = setup(settings.device)
@@ -186,14 +201,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch = next(stream)
-        images = batch["images"].to(info.device)
-        params = net(images, batch["view_mask"].to(info.device))
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
-        terms = objective.batch_terms(params, batch, objective.sample_st(gen), settings.weights)
-        loss = weighted_sum(terms, settings.weights).mean()
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
+        loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
