@@ -18,7 +18,7 @@ sees the overlaps a model in training makes, not the crossing-free template.
 
 Usage: OMP_NUM_THREADS=1 taskset -c 1 .venv/bin/python bench/bench_step_profile.py
        [--dataset DS --category airplane] [--template airplane] [--steps 10] [--batch-size 8]
-       [--max-views 1] [--threads 1] [--image-size 128] [--encoder resnet18] [--json OUT]
+       [--max-views 1] [--threads 1] [--image-size 128] [--encoder-width 64] [--json OUT]
 Without --dataset it writes fixture shards (boxes) to a temporary folder.
 """
 
@@ -95,11 +95,11 @@ def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, 
 
 
 def profile(dataset: str, category: str, template: str, steps: int, batch: int, views: int, noise: float,
-            image_size: int, encoder: str) -> dict[str, float]:  # fmt: skip
+            image_size: int, width: int) -> dict[str, float]:  # fmt: skip
     tpl = load_template(template)
     weights = template_weights(tpl.regularizers)
     torch.manual_seed(0)
-    model = SketchToPatches(tpl.initial_params(), **({} if encoder == "resnet18" else {"encoder": encoder})).train()
+    model = SketchToPatches(tpl.initial_params(), **({} if width == 64 else {"encoder_width": width})).train()
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
     objective = Objective(tpl)
     data = DataSettings(max_views=views, image_size=image_size)
@@ -141,7 +141,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.02)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--image-size", type=int, default=DataSettings.image_size)
-    ap.add_argument("--encoder", default="resnet18")
+    ap.add_argument("--encoder-width", type=int, default=64)
     ap.add_argument("--json", default=None, help="also write the medians here")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
@@ -149,9 +149,9 @@ def main() -> None:
         ds, cat = a.dataset, a.category
         if ds is None:
             ds, cat = str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)), "knife"
-        med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise, a.image_size, a.encoder)
+        med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise, a.image_size, a.encoder_width)
     head = (f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise} "
-            f"image={a.image_size} encoder={a.encoder} steps={a.steps}")  # fmt: skip
+            f"image={a.image_size} encoder_width={a.encoder_width} steps={a.steps}")  # fmt: skip
     print(head)
     real = med["REAL STEP (train_step)"]
     print("| part | median CPU s/step | share of the real step |\n|---|---:|---:|")

@@ -59,6 +59,8 @@ class FitSettings:
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
     n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
+    encoder_width: int = _arg(64, "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
+                              "ResNet-18 as in the paper; 32: a quarter of its cost on CPU, see BENCHMARKS.md)")
     checkpoint_every: int = 500
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
@@ -97,7 +99,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
 
 
 def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
-    model = SketchToPatches(template.initial_params())
+    model = SketchToPatches(template.initial_params(), encoder_width=ckpt["settings"].get("encoder_width", 64))
     model.load_state_dict(ckpt["model"])
     return model.eval()
 
@@ -163,7 +165,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     out = Path(settings.out)
     template = load_template(settings.template)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params()).to(info.device)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
     ckpt_path, start = out / "checkpoint.pt", 0
     if ckpt_path.exists():
