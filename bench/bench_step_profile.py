@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader  # noqa: E402
-from train.fit import train_step  # noqa: E402
+from train.fit import make_optimizer, train_step  # noqa: E402
 from train.losses.terms import LOSS_TERMS, TermInputs  # noqa: E402
 from train.losses.total import weighted_sum  # noqa: E402
 from train.losses.weights import template_weights  # noqa: E402
@@ -100,7 +100,7 @@ def profile(dataset: str, category: str, template: str, steps: int, batch: int, 
     weights = template_weights(tpl.regularizers)
     torch.manual_seed(0)
     model = SketchToPatches(tpl.initial_params(), **({} if width == 64 else {"encoder_width": width})).train()
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+    optimizer = make_optimizer(model, 1e-4, torch.device("cpu"))
     objective = Objective(tpl)
     data = DataSettings(max_views=views, image_size=image_size)
     loader = iter(make_loader(dataset, category, "train", data, 0, batch, 0, True))

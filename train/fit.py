@@ -137,6 +137,12 @@ def _read_log(path: Path, upto: int) -> list[dict]:
         return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
 
 
+def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> torch.optim.Optimizer:
+    """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
+    cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md)."""
+    return torch.optim.Adam(model.parameters(), lr=lr, fused=torch.device(device).type in ("cpu", "cuda"))
+
+
 def train_step(
     net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
     weights: LossWeights, device: torch.device,
@@ -166,7 +172,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     template = load_template(settings.template)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
+    optimizer = make_optimizer(model, settings.lr, info.device)
     ckpt_path, start = out / "checkpoint.pt", 0
     if ckpt_path.exists():
         ckpt = load_checkpoint(ckpt_path, info.device)
