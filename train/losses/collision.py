@@ -91,6 +91,9 @@ def _pack(pairs, keep_i, keep_j, grid) -> CollisionPairs:
     return CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
 
 
+_CELL_EDGES = [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]  # a cell's 4 sides and its a–c diagonal, as corner pairs
+
+
 def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
     """Per grid cell: its 4 vertex ids ``(C, 4)`` (a, b, c, d counter-clockwise), its 5 edges as
     vertex pairs ``(C, 5, 2)`` (4 sides + the a–c diagonal) and its 2 triangles' face ids ``(C, 2)``
@@ -99,7 +102,7 @@ def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
     i_t, i_s = torch.meshgrid(torch.arange(k), torch.arange(k), indexing="ij")
     a = (i_t * grid + i_s).reshape(-1)
     quad = torch.stack([a, a + 1, a + grid + 1, a + grid], -1)
-    edges = quad[:, [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]]
+    edges = quad[:, _CELL_EDGES]
     faces = torch.stack([torch.arange(k * k), torch.arange(k * k) + k * k], -1)
     return quad.to(device), edges.to(device), faces.to(device)
 
@@ -133,15 +136,23 @@ def _crossings(
     keep_src (N, V), keep_dst (N, V)``; kept edges and triangles only), from the overlapping cells
     ``(candidate, source cell, target cell)``: the 5 edges of the source cell against the 2
     triangles of the target cell (unique rows)."""
-    _, cell_edges, cell_faces = _cells(grid, verts.device)
+    quad, cell_edges, cell_faces = _cells(grid, verts.device)
     faces = _faces(grid, verts.device)
     r, c_src, c_dst = cells.unbind(-1)
-    e = cell_edges[c_src]  # (h, 5, 2)
-    f = cell_faces[c_dst]  # (h, 2)
+    # first the cell's 5 edges against the planes of the 2 target triangles, with the plane test
+    # below (same arithmetic): only edges with ends strictly on both sides of a plane go on
+    br = b[r]
+    t = _at(verts, br[:, None, None], dst[r, None, None], faces[cell_faces[c_dst]])  # (h, 2, 3, 3)
+    normal = torch.linalg.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0], dim=-1)  # (h, 2, 3)
+    corner = _at(verts, br[:, None], src[r, None], quad[c_src])  # (h, 4, 3)
+    sd = ((corner[:, None] - t[:, :, None, 0]) * normal[:, :, None]).sum(-1)  # (h, 2, 4)
+    ends = torch.tensor(_CELL_EDGES, device=verts.device)
+    row, tri, edge = (sd[:, :, ends[:, 0]] * sd[:, :, ends[:, 1]] < 0).nonzero().unbind(-1)  # (h, 2, 5) → rows
+    r, e, f = r[row], cell_edges[c_src[row], edge], cell_faces[c_dst[row], tri]
     n_v, n_f = verts.shape[2], faces.shape[0]
     # an edge borders 2 cells: unique (candidate, a, b, triangle) rows, through one int64 key each
-    key = ((r[:, None, None] * n_v + e[:, :, None, 0]) * n_v + e[:, :, None, 1]) * n_f + f[:, None, :]
-    key = torch.unique(key.reshape(-1))
+    key = ((r * n_v + e[:, 0]) * n_v + e[:, 1]) * n_f + f
+    key = torch.unique(key)
     f, key = key % n_f, key // n_f
     vb, key = key % n_v, key // n_v
     va, r = key % n_v, key // n_v
