@@ -91,3 +91,12 @@ def test_validation_keeps_the_best_checkpoint(shards, tmp_path):
     best = load_checkpoint(out / "best.pt")
     assert best["val_chamfer"] == pytest.approx(min(vals.values()))
     assert best["step"] == min(vals, key=vals.get)
+
+
+def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path):
+    out = tmp_path / "narrow"
+    fit(settings(shards, out, 1, encoder_width=16), progress=False)
+    ck = load_checkpoint(out / "checkpoint.pt")
+    model = model_from_checkpoint(ck, load_template("sphere24"))
+    assert model.encoder.out_features == 128
+    assert ck["optimizer"]["param_groups"][0]["fused"]  # the fused Adam kernel on CPU
