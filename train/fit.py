@@ -60,7 +60,7 @@ class FitSettings:
     n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
     encoder_width: int = _arg(64, "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
-                              "ResNet-18 as in the paper; 32: a quarter of its cost on CPU, see BENCHMARKS.md)")
+                              "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)")
     checkpoint_every: int = 500
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
