@@ -1,19 +1,31 @@
-"""Where a training step's time goes: data loading, encoder forward+backward, each loss term
-forward+backward. Medians over steps of CPU seconds (process time: on a shared machine the
-figure a single-threaded process would take alone), one process, ``--threads`` torch threads.
-Each term is timed on its own, so each includes evaluating the patches at the sample points.
+"""Where a training step's time goes, and what the real step costs.
 
-The network outputs are the template plus noise of ``--noise`` (unit-sphere frame), so the
-collision term sees the overlaps a model in training produces, not the crossing-free template.
+Each measured step runs twice on the same batch and samples, alternating:
 
-Usage: OMP_NUM_THREADS=1 .venv/bin/python bench/bench_step_profile.py [--dataset DS --category airplane]
-       [--template airplane] [--steps 10] [--batch-size 8] [--max-views 1] [--threads 1]
+* the real step, ``train.fit.train_step`` exactly as ``fit`` runs it (forward, every term of the
+  template's loss through ``Objective.batch_terms``, backward, Adam) — the figure to quote;
+* the same work split at part boundaries: encoder + head forward, patch evaluation (shared by
+  the terms), point matching (shared by Chamfer and normal), each term's forward, the backward
+  through the loss graph down to the network's output, the backward through the network, the
+  optimizer step. The parts sum to about the real step (timer and split overhead aside).
+
+Medians over steps of CPU seconds (process time: on a shared machine the figure a single-threaded
+process would take alone), one process, ``--threads`` torch threads. Data loading is timed apart
+(``fit`` loads in worker processes).
+
+The network's outputs get noise of ``--noise`` (unit-sphere frame) added, so the collision term
+sees the overlaps a model in training makes, not the crossing-free template.
+
+Usage: OMP_NUM_THREADS=1 taskset -c 1 .venv/bin/python bench/bench_step_profile.py
+       [--dataset DS --category airplane] [--template airplane] [--steps 10] [--batch-size 8]
+       [--max-views 1] [--threads 1] [--image-size 128] [--encoder-width 64] [--json OUT]
 Without --dataset it writes fixture shards (boxes) to a temporary folder.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import tempfile
@@ -26,48 +38,95 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader  # noqa: E402
-from train.losses.total import TERMS  # noqa: E402
-from train.losses.weights import only_term, template_weights  # noqa: E402
+from train.fit import make_optimizer, train_step  # noqa: E402
+from train.losses.terms import LOSS_TERMS, TermInputs  # noqa: E402
+from train.losses.total import weighted_sum  # noqa: E402
+from train.losses.weights import template_weights  # noqa: E402
 from train.model import SketchToPatches  # noqa: E402
 from train.objective import Objective  # noqa: E402
 from train.templates import load_template  # noqa: E402
 
 
-def profile(dataset: str, category: str, template: str, steps: int, batch: int, views: int, noise: float) -> dict[str, float]:
+class _Noisy(torch.nn.Module):
+    """The network with fixed-seed noise on its outputs (differentiable w.r.t. the network)."""
+
+    def __init__(self, net: torch.nn.Module, noise: float, seed: int):
+        super().__init__()
+        self.net, self.noise, self.gen = net, noise, torch.Generator().manual_seed(seed)
+
+    def forward(self, images, view_mask):
+        params = self.net(images, view_mask)
+        return params + self.noise * torch.randn(params.shape, generator=self.gen)
+
+
+def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, tick) -> None:
+    """``train_step``'s work with a timer ``tick(part)`` between parts (same inputs, same result)."""
+    params = net(batch["images"], batch["view_mask"])
+    tick("encoder + head forward")
+    dev = params.device
+    tn = None
+    if weights.template_normal:
+        from train.geometry.coons import evaluate_patches
+
+        tn = evaluate_patches(objective.template_patches, st).normals[0]
+    mask = objective.patch_mask(batch["meta"], dev)
+    sym = objective.sym if objective.sym.numel() else None
+    x = TermInputs(objective.template.patches_from_params(params), st, batch["points"][..., :3], batch["points"][..., 3:],
+                   mask, tn, objective.template.points_from_params(params) if sym is not None else None, sym,
+                   objective.symmetry_valid(mask), objective.plane_x, objective.pairs, objective.groups(batch, dev))  # fmt: skip
+    tick("loss inputs (masks, groups, template normals)")
+    x.ev
+    tick("patch evaluation (shared)")
+    x.matches
+    tick("matching: k-d trees (shared)")
+    terms = {}
+    for term in LOSS_TERMS:
+        value = term.fn(x) if getattr(weights, term.name) else None
+        terms[term.name] = params.new_zeros(params.shape[0]) if value is None else value
+        tick(f"loss: {term.name} forward")
+    loss = weighted_sum(terms, weights).mean()
+    optimizer.zero_grad(set_to_none=True)
+    (grad,) = torch.autograd.grad(loss, params)
+    tick("backward: loss graph")
+    params.backward(grad)
+    tick("backward: encoder + head")
+    optimizer.step()
+    tick("optimizer step (Adam)")
+
+
+def profile(dataset: str, category: str, template: str, steps: int, batch: int, views: int, noise: float,
+            image_size: int, width: int) -> dict[str, float]:  # fmt: skip
     tpl = load_template(template)
     weights = template_weights(tpl.regularizers)
-    model = SketchToPatches(tpl.initial_params()).train()
+    torch.manual_seed(0)
+    model = SketchToPatches(tpl.initial_params(), **({} if width == 64 else {"encoder_width": width})).train()
+    optimizer = make_optimizer(model, 1e-4, torch.device("cpu"))
     objective = Objective(tpl)
-    loader = iter(make_loader(dataset, category, "train", DataSettings(max_views=views), 0, batch, 0, True))
+    data = DataSettings(max_views=views, image_size=image_size)
+    loader = iter(make_loader(dataset, category, "train", data, 0, batch, 0, True))
     gen = torch.Generator().manual_seed(0)
     times: dict[str, list[float]] = {}
+    clock = [0.0]
 
-    def tick(name: str, t0: float) -> float:
-        t1 = time.process_time()
-        times.setdefault(name, []).append(t1 - t0)
-        return t1
-
-    for _ in range(steps + 1):  # the first step warms up and is dropped
+    def tick(name: str) -> None:
         t = time.process_time()
+        times.setdefault(name, []).append(t - clock[0])
+        clock[0] = t
+
+    for i in range(steps + 1):  # the first step warms up and is dropped
+        clock[0] = time.process_time()
         b = next(loader)
-        t = tick("data loading", t)
-        params = model(b["images"], b["view_mask"])
-        jitter = noise * torch.randn(params.shape, generator=gen)
-        t = tick("encoder + head forward", t)
-        out = (params.detach() + jitter).requires_grad_(True)
+        tick("data loading (fit: worker processes)")
         st = objective.sample_st(gen)
-        grad = torch.zeros_like(out)
-        for name in TERMS:
-            if not getattr(weights, name):
-                continue
-            terms = objective.batch_terms(out, b, st, only_term(name, weights))
-            (g,) = torch.autograd.grad(getattr(weights, name) * terms[name].mean(), out, allow_unused=True)
-            grad += 0 if g is None else g
-            t = tick(f"loss: {name} (fwd+bwd)", t)
-        params.backward(grad)
-        tick("encoder + head backward", t)
+        seed = 1000 + i
+        t0 = time.process_time()
+        train_step(_Noisy(model, noise, seed), optimizer, objective, b, st, weights, torch.device("cpu"))
+        times.setdefault("REAL STEP (train_step)", []).append(time.process_time() - t0)
+        clock[0] = time.process_time()
+        _split_step(_Noisy(model, noise, seed), optimizer, objective, b, st, weights, tick)
     med = {k: statistics.median(v[1:]) for k, v in times.items()}
-    med["total"] = sum(med.values())
+    parts = [k for k in med if not k.startswith(("REAL", "data"))]
+    med["sum of the parts"] = sum(med[k] for k in parts)
     return med
 
 
@@ -81,17 +140,25 @@ def main() -> None:
     ap.add_argument("--max-views", type=int, default=1)
     ap.add_argument("--noise", type=float, default=0.02)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--image-size", type=int, default=DataSettings.image_size)
+    ap.add_argument("--encoder-width", type=int, default=64)
+    ap.add_argument("--json", default=None, help="also write the medians here")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     with tempfile.TemporaryDirectory() as tmp:
         ds, cat = a.dataset, a.category
         if ds is None:
             ds, cat = str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)), "knife"
-        med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise)
-    print(f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise}")
-    print("| part | median CPU s/step | share |\n|---|---:|---:|")
+        med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise, a.image_size, a.encoder_width)
+    head = (f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise} "
+            f"image={a.image_size} encoder_width={a.encoder_width} steps={a.steps}")  # fmt: skip
+    print(head)
+    real = med["REAL STEP (train_step)"]
+    print("| part | median CPU s/step | share of the real step |\n|---|---:|---:|")
     for k, v in med.items():
-        print(f"| {k} | {v:.3f} | {100 * v / med['total']:.0f} % |")
+        print(f"| {k} | {v:.3f} | {100 * v / real:.0f} % |")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"settings": vars(a), "median_cpu_s": med}, indent=1))
 
 
 if __name__ == "__main__":

@@ -107,3 +107,12 @@ def test_checkpoint_keeps_its_template_when_the_named_file_is_rebuilt(shards, tm
     res = evaluate(out / "checkpoint.pt", shards, "test")  # would fail loading 24-patch weights into 54
     assert res["model"]["chamfer"] > 0
     assert fit(settings(shards, out, 2, template=str(path)), progress=False)["step"] == 2  # resume too
+
+
+def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path):
+    out = tmp_path / "narrow"
+    fit(settings(shards, out, 1, encoder_width=16), progress=False)
+    ck = load_checkpoint(out / "checkpoint.pt")
+    model = model_from_checkpoint(ck, load_template("sphere24"))
+    assert model.encoder.out_features == 128
+    assert ck["optimizer"]["param_groups"][0]["fused"]  # the fused Adam kernel on CPU

@@ -140,3 +140,18 @@ def test_surface_samples_are_on_the_surface_and_deterministic():
     octant = ((a[0] > 0).long() * torch.tensor([1, 2, 4])).sum(-1)
     share = torch.bincount(octant, minlength=8).double() / 2000
     assert (share - 0.125).abs().max() < 0.03
+
+
+def test_matrix_evaluation_equals_the_coons_formula_term_by_term():
+    from train.geometry.coons import _partials_formula, _points_formula
+
+    gen = torch.Generator().manual_seed(7)
+    p = random_patches(gen, 4)[None].repeat(2, 1, 1, 1, 1)
+    for st in (torch.rand(9, 2, generator=gen, dtype=torch.float64), torch.rand(4, 5, 2, generator=gen, dtype=torch.float64)):
+        ev = evaluate_patches(p, st)
+        torch.testing.assert_close(ev.points, _points_formula(p, st), rtol=1e-12, atol=1e-12)
+        p_s, p_t = _partials_formula(p, st)
+        torch.testing.assert_close(coons_partials(p, st)[0], p_s, rtol=1e-12, atol=1e-12)
+        cross = torch.linalg.cross(p_s, p_t, dim=-1)
+        torch.testing.assert_close(ev.jacobian, cross.norm(dim=-1), rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(coons_points(p, st), ev.points, rtol=1e-12, atol=1e-12)

@@ -1,3 +1,4 @@
+import pytest
 import torch
 
 from train.model import SketchToPatches
@@ -23,3 +24,15 @@ def test_untrained_model_outputs_template_and_pools_views():
     assert torch.allclose(m(x, mask), m(x[:, :1]), atol=1e-5)
     assert not torch.allclose(m(x), m(x[:, :1]))
     assert torch.allclose(m.decode_latent(m.latent(x)), m(x))
+
+
+def test_encoder_width_scales_every_stage_and_the_code():
+    net = ResNet18(1, width=32)
+    assert net(torch.rand(2, 1, 64, 64)).shape == (2, 256)
+    n = sum(p.numel() for p in net.parameters())
+    assert 2.7e6 < n < 2.9e6  # about a quarter of ResNet-18: weights grow with channels squared
+    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=32).eval()
+    assert m.encode(torch.rand(3, 2, 1, 32, 32)).shape == (3, 256)
+    assert torch.equal(m(torch.rand(3, 1, 1, 32, 32)), torch.linspace(-1, 1, 30).expand(3, 30))  # still the template
+    with pytest.raises(ValueError, match="encoder width"):
+        ResNet18(1, width=0)

@@ -59,6 +59,8 @@ class FitSettings:
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
     n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
+    encoder_width: int = _arg(64, "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
+                              "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)")
     checkpoint_every: int = 500
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
@@ -109,7 +111,7 @@ def template_from_checkpoint(ckpt: dict) -> Template:
 
 
 def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
-    model = SketchToPatches(template.initial_params())
+    model = SketchToPatches(template.initial_params(), encoder_width=ckpt["settings"].get("encoder_width", 64))
     model.load_state_dict(ckpt["model"])
     return model.eval()
 
@@ -147,6 +149,27 @@ def _read_log(path: Path, upto: int) -> list[dict]:
         return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
 
 
+def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> torch.optim.Optimizer:
+    """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
+    cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md)."""
+    return torch.optim.Adam(model.parameters(), lr=lr, fused=torch.device(device).type in ("cpu", "cuda"))
+
+
+def train_step(
+    net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
+    weights: LossWeights, device: torch.device,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
+    """One optimisation step on a loader batch at samples ``st``: forward, the loss, backward, update.
+    Returns the batch loss and the per-item terms (``bench/bench_step_profile.py`` times this)."""
+    params = net(batch["images"].to(device), batch["view_mask"].to(device))
+    terms = objective.batch_terms(params, batch, st, weights)
+    loss = weighted_sum(terms, weights).mean()
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return loss, terms
+
+
 def fit(settings: FitSettings, progress: bool = True) -> dict:
     """Train (or resume) a run; returns {"step", "last_loss", "out"}. Works under torchrun."""
     info = setup(settings.device)
@@ -163,8 +186,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     # a resumed run keeps the template it started with, even if the named one was rebuilt since
     template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params()).to(info.device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
+    optimizer = make_optimizer(model, settings.lr, info.device)
     if ckpt is not None:
         saved = from_dict(FitSettings, ckpt["settings"])
         if saved.identity() != settings.identity():
@@ -199,14 +222,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch = next(stream)
-        images = batch["images"].to(info.device)
-        params = net(images, batch["view_mask"].to(info.device))
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
-        terms = objective.batch_terms(params, batch, objective.sample_st(gen), settings.weights)
-        loss = weighted_sum(terms, settings.weights).mean()
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
+        loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):

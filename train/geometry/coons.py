@@ -33,8 +33,8 @@ def _corners(c1: Tensor, c3: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return c1[..., 0:1, :], c1[..., 3:4, :], c3[..., 3:4, :], c3[..., 0:1, :]
 
 
-def coons_points(patches: Tensor, st: Tensor) -> Tensor:
-    """Surface points of ``patches (..., P, 4, 4, 3)`` at ``st (S, 2)`` or ``(P, S, 2)`` → ``(..., P, S, 3)``."""
+def _points_formula(patches: Tensor, st: Tensor) -> Tensor:
+    """The Coons formula, term by term (``coons_basis`` applies it to unit control points)."""
     s, t, c1, c2, c3, c4 = _split(patches, st)
     p00, p10, p01, p11 = _corners(c1, c3)
     S, T = s[..., None], t[..., None]
@@ -48,8 +48,8 @@ def coons_points(patches: Tensor, st: Tensor) -> Tensor:
     return ruled - bilinear
 
 
-def coons_partials(patches: Tensor, st: Tensor) -> tuple[Tensor, Tensor]:
-    """Closed-form ∂P/∂s and ∂P/∂t, each ``(..., P, S, 3)``."""
+def _partials_formula(patches: Tensor, st: Tensor) -> tuple[Tensor, Tensor]:
+    """Closed-form ∂P/∂s and ∂P/∂t, term by term."""
     s, t, c1, c2, c3, c4 = _split(patches, st)
     p00, p10, p01, p11 = _corners(c1, c3)
     S, T = s[..., None], t[..., None]
@@ -70,6 +70,38 @@ def coons_partials(patches: Tensor, st: Tensor) -> tuple[Tensor, Tensor]:
     return p_s, p_t
 
 
+def coons_basis(st: Tensor, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> Tensor:
+    """Weights of a patch's 16 control points (4 curves × 4, in ``patches``' order) giving its
+    point, ∂P/∂s and ∂P/∂t at ``st (S, 2)`` or ``(P, S, 2)`` → ``(3, S, 16)`` or ``(3, P, S, 16)``.
+
+    A Coons patch is linear in its control points, so the formula applied to the 16 unit control
+    points gives these weights, and evaluating any batch of patches is then one matrix product
+    (``evaluate_patches``): far fewer, larger operations than the formula term by term, forward
+    and backward."""
+    unit = torch.eye(16, dtype=dtype, device=device).reshape(16, 1, 4, 4, 1)
+    st = st.to(device=device)
+    rows = [_points_formula(unit, st)[..., 0], *(d[..., 0] for d in _partials_formula(unit, st))]  # (16, 1|P, S)
+    w = torch.stack(rows).movedim(1, -1)  # (3, 1|P, S, 16)
+    return w[:, 0] if st.dim() == 2 else w
+
+
+def _apply(patches: Tensor, basis: Tensor) -> Tensor:
+    """``basis (..., S, 16)`` applied to ``patches (..., P, 4, 4, 3)`` → ``(..., P, S, 3)``."""
+    # einsum folds the batch into one matrix product (the broadcast ``@`` makes one per patch)
+    return torch.einsum("...sk,...kd->...sd", basis, patches.flatten(-3, -2))
+
+
+def coons_points(patches: Tensor, st: Tensor) -> Tensor:
+    """Surface points of ``patches (..., P, 4, 4, 3)`` at ``st (S, 2)`` or ``(P, S, 2)`` → ``(..., P, S, 3)``."""
+    return _apply(patches, coons_basis(st, patches.dtype, patches.device)[0])
+
+
+def coons_partials(patches: Tensor, st: Tensor) -> tuple[Tensor, Tensor]:
+    """Closed-form ∂P/∂s and ∂P/∂t, each ``(..., P, S, 3)``."""
+    w = coons_basis(st, patches.dtype, patches.device)
+    return _apply(patches, w[1]), _apply(patches, w[2])
+
+
 def _safe_norm(v: Tensor, eps: float) -> Tensor:
     # sqrt of a clamped square keeps gradients finite on degenerate (zero-area) samples
     return torch.sqrt((v * v).sum(-1).clamp_min(eps * eps))
@@ -88,8 +120,11 @@ def coons_normals(patches: Tensor, st: Tensor, eps: float = 1e-12) -> Tensor:
 
 def evaluate_patches(patches: Tensor, st: Tensor, eps: float = 1e-12) -> PatchSamples:
     """Points, unit normals and Jacobian magnitude in one pass."""
-    points = coons_points(patches, st)
-    p_s, p_t = coons_partials(patches, st)
+    w = coons_basis(st, patches.dtype, patches.device)  # (3, ..., S, 16)
+    s = w.shape[-2]
+    # one product for points and both partials: the three weight blocks stacked along samples
+    both = _apply(patches, torch.cat(w.unbind(0), dim=-2))  # (..., P, 3S, 3)
+    points, p_s, p_t = both[..., :s, :], both[..., s : 2 * s, :], both[..., 2 * s :, :]
     cross = torch.linalg.cross(p_s, p_t, dim=-1)
     jac = _safe_norm(cross, eps)
     return PatchSamples(points, cross / jac[..., None], jac)

@@ -91,6 +91,9 @@ def _pack(pairs, keep_i, keep_j, grid) -> CollisionPairs:
     return CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
 
 
+_CELL_EDGES = [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]  # a cell's 4 sides and its a–c diagonal, as corner pairs
+
+
 def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
     """Per grid cell: its 4 vertex ids ``(C, 4)`` (a, b, c, d counter-clockwise), its 5 edges as
     vertex pairs ``(C, 5, 2)`` (4 sides + the a–c diagonal) and its 2 triangles' face ids ``(C, 2)``
@@ -99,43 +102,65 @@ def _cells(grid: int, device) -> tuple[Tensor, Tensor, Tensor]:
     i_t, i_s = torch.meshgrid(torch.arange(k), torch.arange(k), indexing="ij")
     a = (i_t * grid + i_s).reshape(-1)
     quad = torch.stack([a, a + 1, a + grid + 1, a + grid], -1)
-    edges = quad[:, [[0, 1], [1, 2], [3, 2], [0, 3], [0, 2]]]
+    edges = quad[:, _CELL_EDGES]
     faces = torch.stack([torch.arange(k * k), torch.arange(k * k) + k * k], -1)
     return quad.to(device), edges.to(device), faces.to(device)
 
 
-def _crossings(src: Tensor, keep_src: Tensor, tris: Tensor, keep_tris: Tensor, grid: int) -> Tensor:
-    """(pair, vertex a, vertex b, triangle) rows where the grid edge a–b of ``src (n, V, 3)`` passes
-    through a triangle of ``tris (n, F, 3, 3)`` (detached; kept edges and triangles only).
+def _overlapping_cells(lo: Tensor, hi: Tensor, b: Tensor, i: Tensor, j: Tensor, chunk: int) -> Tensor:
+    """(candidate, cell of i, cell of j) rows whose cell boxes overlap, for candidate patch pairs
+    ``(b, i, j)`` and per-patch cell boxes ``lo, hi (B, P, C, 3)``. A cell's box is that of its 4
+    vertices, which are also its 2 triangles' corners, so one list serves both crossing
+    directions (i's edges through j's triangles and j's through i's)."""
+    out = []
+    lo_t, hi_t = lo.movedim(-1, 0).contiguous(), hi.movedim(-1, 0).contiguous()  # (3, B, P, C)
+    for s in range(0, b.shape[0], chunk):
+        bb, ii, jj = b[s : s + chunk], i[s : s + chunk], j[s : s + chunk]
+        lo_i, lo_j, hi_i, hi_j = (x[:, bb, p] for x in (lo_t, hi_t) for p in (ii, jj))  # (3, n, C)
+        over = lo_i[0, :, :, None] <= hi_j[0, :, None]  # (n, C, C), one axis at a time: no (n, C, C, 3)
+        over &= lo_j[0, :, None] <= hi_i[0, :, :, None]
+        for d in (1, 2):
+            over &= lo_i[d, :, :, None] <= hi_j[d, :, None]
+            over &= lo_j[d, :, None] <= hi_i[d, :, :, None]
+        rows = over.nonzero()
+        rows[:, 0] += s
+        out.append(rows)
+    return torch.cat(out) if out else torch.zeros((0, 3), dtype=torch.long, device=lo.device)
 
-    Two levels: cell boxes of the two grids against each other, then the 5 edges of each
-    overlapping source cell against the 2 triangles of the target cell (unique rows)."""
-    quad, cell_edges, cell_faces = _cells(grid, src.device)
-    cs = src[:, quad]  # (n, C, 4, 3)
-    slo, shi = cs.amin(-2), cs.amax(-2)
-    ct = tris[:, cell_faces].flatten(2, 3)  # (n, C, 6, 3)
-    tlo, thi = ct.amin(-2), ct.amax(-2)
-    # cells inside the other grid's box first (cheap), then box against box for those pairs only
-    src_in = ((slo <= thi.amax(1, keepdim=True)) & (shi >= tlo.amin(1, keepdim=True))).all(-1)  # (n, C)
-    dst_in = ((tlo <= shi.amax(1, keepdim=True)) & (thi >= slo.amin(1, keepdim=True))).all(-1)
-    n, c_src, c_dst = (src_in[:, :, None] & dst_in[:, None, :]).nonzero().unbind(-1)
-    over = ((slo[n, c_src] <= thi[n, c_dst]) & (shi[n, c_src] >= tlo[n, c_dst])).all(-1)
-    n, c_src, c_dst = n[over], c_src[over], c_dst[over]
-    if n.numel() == 0:
-        return torch.zeros((0, 4), dtype=torch.long, device=src.device)
-    e = cell_edges[c_src]  # (h, 5, 2)
-    f = cell_faces[c_dst]  # (h, 2)
-    n_v, n_f = src.shape[1], tris.shape[1]
-    # an edge borders 2 cells: unique (pair, a, b, triangle) rows, through one int64 key each
-    key = ((n[:, None, None] * n_v + e[:, :, None, 0]) * n_v + e[:, :, None, 1]) * n_f + f[:, None, :]
-    key = torch.unique(key.reshape(-1))
+
+def _crossings(
+    verts: Tensor, b: Tensor, src: Tensor, dst: Tensor, keep_src: Tensor, keep_dst: Tensor, cells: Tensor, grid: int
+) -> Tensor:
+    """(candidate, vertex a, vertex b, triangle) rows where the grid edge a–b of patch ``src`` passes
+    through a triangle of patch ``dst`` (detached ``verts (B, P, V, 3)``; candidates ``b, src, dst,
+    keep_src (N, V), keep_dst (N, V)``; kept edges and triangles only), from the overlapping cells
+    ``(candidate, source cell, target cell)``: the 5 edges of the source cell against the 2
+    triangles of the target cell (unique rows)."""
+    quad, cell_edges, cell_faces = _cells(grid, verts.device)
+    faces = _faces(grid, verts.device)
+    r, c_src, c_dst = cells.unbind(-1)
+    # first the cell's 5 edges against the planes of the 2 target triangles, with the plane test
+    # below (same arithmetic): only edges with ends strictly on both sides of a plane go on
+    br = b[r]
+    t = _at(verts, br[:, None, None], dst[r, None, None], faces[cell_faces[c_dst]])  # (h, 2, 3, 3)
+    normal = torch.linalg.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0], dim=-1)  # (h, 2, 3)
+    corner = _at(verts, br[:, None], src[r, None], quad[c_src])  # (h, 4, 3)
+    sd = ((corner[:, None] - t[:, :, None, 0]) * normal[:, :, None]).sum(-1)  # (h, 2, 4)
+    ends = torch.tensor(_CELL_EDGES, device=verts.device)
+    row, tri, edge = (sd[:, :, ends[:, 0]] * sd[:, :, ends[:, 1]] < 0).nonzero().unbind(-1)  # (h, 2, 5) → rows
+    r, e, f = r[row], cell_edges[c_src[row], edge], cell_faces[c_dst[row], tri]
+    n_v, n_f = verts.shape[2], faces.shape[0]
+    # an edge borders 2 cells: unique (candidate, a, b, triangle) rows, through one int64 key each
+    key = ((r * n_v + e[:, 0]) * n_v + e[:, 1]) * n_f + f
+    key = torch.unique(key)
     f, key = key % n_f, key // n_f
     vb, key = key % n_v, key // n_v
-    va, n = key % n_v, key // n_v
-    ok = keep_src[n, va] & keep_src[n, vb] & keep_tris[n, f]
-    n, va, vb, f = n[ok], va[ok], vb[ok], f[ok]
-    t = tris[n, f]
-    pa, pb = src[n, va], src[n, vb]
+    va, r = key % n_v, key // n_v
+    ok = keep_src[r, va] & keep_src[r, vb] & keep_dst[r[:, None], faces[f]].all(-1)
+    r, va, vb, f = r[ok], va[ok], vb[ok], f[ok]
+    br, sr = b[r], src[r]
+    t = _at(verts, br[:, None], dst[r, None], faces[f])  # (h, 3, 3)
+    pa, pb = _at(verts, br, sr, va), _at(verts, br, sr, vb)
     normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
     da, db = ((pa - t[:, 0]) * normal).sum(-1), ((pb - t[:, 0]) * normal).sum(-1)
     through = da * db < 0  # strictly on both sides of the plane
@@ -146,7 +171,24 @@ def _crossings(src: Tensor, keep_src: Tensor, tris: Tensor, keep_tris: Tensor, g
         u, v = t[:, k], t[:, (k + 1) % 3]
         inside &= (torch.linalg.cross(v - u, x - u, dim=-1) * normal).sum(-1) >= 0
     hit = through & inside
-    return torch.stack([n[hit], va[hit], vb[hit], f[hit]], -1)
+    return torch.stack([r[hit], va[hit], vb[hit], f[hit]], -1)
+
+
+def _at(verts: Tensor, b: Tensor, p: Tensor, v: Tensor | None = None) -> Tensor:
+    """``verts (B, P, V, 3)`` at batch items ``b``, patches ``p`` and vertices ``v`` (broadcast
+    together; every vertex of the patch when ``v`` is None) → ``(..., 3)`` or ``(..., V, 3)``.
+    One flat index_select: much cheaper on CPU than advanced indexing with three index tensors."""
+    n_p, n_v = verts.shape[1], verts.shape[2]
+    if v is None:
+        v, b, p = torch.arange(n_v, device=verts.device), b[..., None], p[..., None]
+    idx = (b * n_p + p) * n_v + v
+    return verts.reshape(-1, 3).index_select(0, idx.reshape(-1)).reshape(*idx.shape, 3)
+
+
+def _faces(grid: int, device) -> Tensor:
+    from train.geometry.grid import grid_triangulation
+
+    return grid_triangulation(grid).to(device)
 
 
 def _kept_box(v: Tensor, keep: Tensor) -> tuple[Tensor, Tensor]:
@@ -167,10 +209,12 @@ def collision_loss(
         return out
     dev = patches.device
     verts, faces = triangulate_patches(patches, pairs.grid)  # (B, P, V, 3), (F, 3)
+    verts = verts.contiguous()  # gathered from often below, through a flat view
     pr = pairs.pairs.to(dev)
     keep_i, keep_j = pairs.keep_i.to(dev), pairs.keep_j.to(dev)
     with torch.no_grad():
-        lo, hi = verts.amin(2), verts.amax(2)  # (B, P, 3)
+        v = verts.detach()
+        lo, hi = v.amin(2), v.amax(2)  # (B, P, 3)
         near = ((lo[:, pr[:, 0]] <= hi[:, pr[:, 1]]) & (lo[:, pr[:, 1]] <= hi[:, pr[:, 0]])).all(-1)  # (B, K)
         if patch_mask is not None:
             pm = patch_mask.to(dev)
@@ -178,28 +222,35 @@ def collision_loss(
         cand = near.nonzero()  # (N, 2): batch, pair
         # then the boxes of the kept vertices only (bands along shared boundaries left out)
         b, k = cand.unbind(-1)
-        (lo_i, hi_i), (lo_j, hi_j) = _kept_box(verts[b, pr[k, 0]], keep_i[k]), _kept_box(verts[b, pr[k, 1]], keep_j[k])
+        # (only pairs that share a boundary keep fewer than all vertices; the others keep the patch box)
+        part = ~(keep_i.all(-1) & keep_j.all(-1))[k]
+        lo_i, hi_i, lo_j, hi_j = lo[b, pr[k, 0]], hi[b, pr[k, 0]], lo[b, pr[k, 1]], hi[b, pr[k, 1]]
+        bp, kp = b[part], k[part]
+        (lo_i[part], hi_i[part]), (lo_j[part], hi_j[part]) = (_kept_box(_at(v, bp, pr[kp, 0]), keep_i[kp]),
+                                                              _kept_box(_at(v, bp, pr[kp, 1]), keep_j[kp]))  # fmt: skip
         cand = cand[((lo_i <= hi_j) & (lo_j <= hi_i)).all(-1)]
+        b, k = cand.unbind(-1)
+        pi, pj = pr[k, 0], pr[k, 1]
+        quad = _cells(pairs.grid, dev)[0]
+        cell_v = v[:, :, quad]  # (B, P, C, 4, 3)
+        cells = _overlapping_cells(cell_v.amin(-2), cell_v.amax(-2), b, pi, pj, chunk)
     depth = patches.new_zeros(cand.shape[0])
-    for start in range(0, cand.shape[0], chunk):
-        b, k = cand[start : start + chunk].unbind(-1)
-        sl = torch.arange(start, start + b.shape[0], device=dev)
-        for src, dst, k_src, k_dst in ((pr[k, 0], pr[k, 1], keep_i[k], keep_j[k]), (pr[k, 1], pr[k, 0], keep_j[k], keep_i[k])):
-            pts, tris = verts[b, src], verts[b, dst][:, faces]  # (n, V, 3), (n, F, 3, 3)
-            with torch.no_grad():
-                hit = _crossings(pts.detach(), k_src, tris.detach(), k_dst[:, faces].all(-1), pairs.grid)
-            if hit.shape[0] == 0:
-                continue
-            n, va, vb, f = hit.unbind(-1)
-            t = tris[n, f]
-            normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
-            unit = normal / normal.norm(dim=-1, keepdim=True).clamp_min(_TINY)
-            ends = torch.stack([pts[n, va], pts[n, vb]], 1)  # (h, 2, 3)
-            signed = ((ends - t[:, None, 0]) * unit[:, None]).sum(-1)  # (h, 2)
-            with torch.no_grad():  # which side of the triangle most of patch `src` lies on
-                all_sd = ((pts[n].detach() - t[:, None, 0].detach()) * unit[:, None].detach()).sum(-1)
-                side = torch.sign((all_sd * k_src[n].to(all_sd.dtype)).sum(-1))
-                side = torch.where(side == 0, torch.ones_like(side), side)
-                minority = (signed.detach() * side[:, None] < 0).to(signed.dtype)  # one end per crossing
-            depth = depth.index_add(0, sl[n], (signed.abs() * minority).sum(-1))
-    return out.index_add(0, cand[:, 0], depth)
+    for src, dst, k_src, k_dst, order in ((pi, pj, keep_i[k], keep_j[k], (1, 2)), (pj, pi, keep_j[k], keep_i[k], (2, 1))):
+        with torch.no_grad():
+            hit = _crossings(v, b, src, dst, k_src, k_dst, cells[:, (0,) + order], pairs.grid)
+        if hit.shape[0] == 0:
+            continue
+        r, va, vb, f = hit.unbind(-1)
+        br, sr = b[r], src[r]
+        t = _at(verts, br[:, None], dst[r, None], faces[f])  # (h, 3, 3)
+        normal = torch.linalg.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], dim=-1)
+        unit = normal / normal.norm(dim=-1, keepdim=True).clamp_min(_TINY)
+        ends = _at(verts, br[:, None], sr[:, None], torch.stack([va, vb], 1))  # (h, 2, 3)
+        signed = ((ends - t[:, None, 0]) * unit[:, None]).sum(-1)  # (h, 2)
+        with torch.no_grad():  # which side of the triangle most of patch `src` lies on
+            all_sd = ((_at(v, br, sr) - t[:, None, 0].detach()) * unit[:, None].detach()).sum(-1)
+            side = torch.sign((all_sd * k_src[r].to(all_sd.dtype)).sum(-1))
+            side = torch.where(side == 0, torch.ones_like(side), side)
+            minority = (signed.detach() * side[:, None] < 0).to(signed.dtype)  # one end per crossing
+        depth = depth.index_add(0, r, (signed.abs() * minority).sum(-1))
+    return out.index_add(0, b, depth)
