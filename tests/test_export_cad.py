@@ -93,7 +93,7 @@ def prediction(tmp_path_factory):
     with torch.no_grad():
         model.out.weight.normal_(0, 0.02)
     s = FitSettings(dataset="-", category="mug", template=TEMPLATE, out=str(d), image_size=32)
-    save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s, load_template(TEMPLATE))
     cv2.imwrite(str(d / "s.png"), box_sketch(np.array([0.5, 0.6, 0.6]), camera(30, 20, 32), 32, 1))
     out = d / "out"
     res = predict(d / "checkpoint.pt", [d / "s.png"], out)

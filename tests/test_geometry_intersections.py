@@ -67,7 +67,7 @@ def test_predict_flags_an_intersecting_prediction(tmp_path):
     with torch.no_grad():  # an untrained network outputs its bias: make that the pushed sphere
         model.out.bias[:3] *= -1.3
     s = FitSettings(dataset="-", category="x", template="sphere24", out=str(tmp_path), image_size=32)
-    save_checkpoint(tmp_path / "ck.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    save_checkpoint(tmp_path / "ck.pt", model, torch.optim.Adam(model.parameters()), 0, s, t)
     cv2.imwrite(str(tmp_path / "s.png"), box_sketch(np.array([0.6, 0.6, 0.5]), camera(30, 20, 32), 32, 1))
     printed = io.StringIO()
     with redirect_stdout(printed):

@@ -29,7 +29,7 @@ def checkpoint(tmp_path_factory):
         model.out.weight.normal_(0, 0.02)
     model.eval()
     s = FitSettings(dataset="-", category="knife", template="sphere24", out=str(d), image_size=32)
-    save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    save_checkpoint(d / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s, t)
     sketches = []
     for i, half in enumerate(([1, 0.3, 0.2], [0.3, 1, 0.3])):
         h = np.array(half) / np.linalg.norm(half)
@@ -79,7 +79,7 @@ def test_predict_with_a_part_switched_off_exports_a_closed_mesh(tmp_path, guard)
     model = SketchToPatches(t.initial_params())  # zero last layer: predicts the template itself
     model.eval()
     s = FitSettings(dataset="-", category="knife", template="knife", out=str(tmp_path), image_size=32)
-    save_checkpoint(tmp_path / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s)
+    save_checkpoint(tmp_path / "checkpoint.pt", model, torch.optim.Adam(model.parameters()), 0, s, t)
     sketch = tmp_path / "s.png"
     cv2.imwrite(str(sketch), box_sketch(np.array([1, 0.3, 0.2]) / 1.06, camera(30, 20, 32), 32, 1))
     res = predict(tmp_path / "checkpoint.pt", [sketch], tmp_path / "out", {"guard": guard})

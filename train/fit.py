@@ -79,7 +79,7 @@ class FitSettings:
 
 def save_checkpoint(
     path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
-    val_chamfer: float | None = None, template: Template | None = None,
+    template: Template, val_chamfer: float | None = None,
 ) -> None:
     with atomic_path(path) as tmp:
         torch.save(
@@ -91,7 +91,7 @@ def save_checkpoint(
                 "settings": dataclasses.asdict(settings),
                 "template": settings.template,
                 # the template itself: a rebuilt shipped template must not change what an old run means
-                "template_json": None if template is None else template.to_json(),
+                "template_json": template.to_json(),
                 "num_params": model.num_params,
             },
             tmp,
@@ -230,14 +230,14 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             val = validation_chamfer(model, val_loader, objective, info.device)
             if val < best:
                 best = val
-                save_checkpoint(out / "best.pt", model, optimizer, done, settings, val_chamfer=val, template=template)
+                save_checkpoint(out / "best.pt", model, optimizer, done, settings, template, val_chamfer=val)
         if done % settings.log_every == 0 or done == settings.steps or val is not None:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
                 logger.log(done, last, {**row, "val_chamfer": "" if val is None else val}, time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
-            save_checkpoint(ckpt_path, model, optimizer, done, settings, template=template)
+            save_checkpoint(ckpt_path, model, optimizer, done, settings, template)
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.4f}")

@@ -24,24 +24,27 @@ BAR = 0.25  # handle bar thickness, fraction of the handle's reach / height
 # bathtub wall / floor (procedural tubs: wall 0.04–0.09 on half-widths 0.28–0.55, floor ~ 1/5 of the height)
 TUB_WALL = 0.18
 TUB_BOTTOM = 0.2
+# category -> (part label whose box becomes floor + four walls, wall fraction, bottom fraction)
+HOLLOW = {"mug": ("cup", WALL, BOTTOM), "bathtub": ("tub", TUB_WALL, TUB_BOTTOM)}
 
 
 def category_boxes(category: str, cuboids: Sequence[CuboidLike]) -> list[Box]:
     boxes = [Box(base_label(c.label), np.asarray(c.lo, float), np.asarray(c.hi, float)) for c in cuboids]
+    if category in HOLLOW:
+        label, wall, bottom = HOLLOW[category]
+        boxes = [h for b in boxes for h in (hollow_box(b, wall, bottom) if b.label == label else [b])]
     if category == "mug":
-        boxes = _mug(boxes)
-    if category == "bathtub":
-        boxes = [b2 for b in boxes for b2 in (hollow_box(b, TUB_WALL, TUB_BOTTOM) if b.label == "tub" else [b])]
+        boxes = _handles(boxes)
     return boxes
 
 
-def _mug(boxes: list[Box]) -> list[Box]:
+def _handles(boxes: list[Box]) -> list[Box]:
+    """Each handle box becomes a three-bar loop against the cup (its walls already hollowed)."""
     cups = [b for b in boxes if b.label == "cup"]
     if not cups:
         return boxes
-    cup = cups[0]
-    out = [b for b in boxes if b.label not in ("cup", "handle")]
-    out += hollow_box(cup, WALL, BOTTOM)
+    cup = Box("cup", np.min([b.lo for b in cups], 0), np.max([b.hi for b in cups], 0))
+    out = [b for b in boxes if b.label != "handle"]
     for h in (b for b in boxes if b.label == "handle"):
         out += handle_loop(h, cup)
     return out
