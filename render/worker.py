@@ -28,8 +28,8 @@ from pipeline.core.stage_keys import settings_hash
 from pipeline.core.errors import ModelError
 from pipeline.core.model_loop import FATAL_ERRORS, ModelJob, run_models
 from pipeline.core.images import encode_png
-from pipeline.core.plain_ply import read_plain_ply
 from pipeline.core.schema import CAMERAS_FILE, STROKES_FILE, view_name
+from pipeline.sources.mesh_io import read_ply
 from render import cameras
 from render.job import FATAL_EXIT, PARENT_ENV, PROGRESS_PREFIX, fatal_to_json, read_job
 from render.settings import RenderSettings
@@ -38,26 +38,16 @@ from render.settings import RenderSettings
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n,3) float64 and triangles (m,3) int64 of a mesh file, or ModelError.
 
-    The prepare stage's PLY is read with numpy alone (pipeline.core.plain_ply), so the embree
-    backend's worker never imports trimesh; any other file goes through trimesh."""
+    The prepare stage's PLY is read with numpy alone (``read_ply``), so the embree backend's
+    worker never imports trimesh; any other file goes through trimesh."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(path, "mesh file not found")
     try:
-        plain = read_plain_ply(path)
-    except OSError:
-        plain = None  # trimesh below meets the same problem and names it
-    if plain is not None:
-        vertices, faces = plain
-    else:
-        import trimesh
-
-        try:
-            mesh = trimesh.load(str(path), force="mesh", process=False)
-        except Exception as exc:  # trimesh raises many types for corrupt files
-            raise ModelError(path, f"cannot read mesh: {type(exc).__name__}: {exc}") from None
-        vertices = np.asarray(getattr(mesh, "vertices", np.empty((0, 3))), np.float64)
-        faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
+        vertices, faces = read_ply(path)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise ModelError(path, f"cannot read mesh: {type(exc).__name__}: {exc}") from None
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if len(vertices) == 0 or len(faces) == 0 or faces.ndim != 2 or faces.shape[1] != 3:
         raise ModelError(path, f"no triangles in mesh ({len(vertices)} vertices, {len(faces)} faces)")
     if not np.isfinite(vertices).all():

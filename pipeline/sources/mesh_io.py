@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import trimesh
 
 from pipeline.core.atomic import write_bytes
 from pipeline.core.errors import ModelError
@@ -293,6 +292,8 @@ def _trimesh_load(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
     """Any format trimesh reads: force="mesh" flattens scenes (GLB, multi-object OBJ) applying
     node transforms; process=False keeps the file's vertices untouched (watertighting repairs
     them anyway)."""
+    import trimesh  # imported on use: see read_ply
+
     if head.startswith(_BOM):  # a UTF-8 byte order mark (Windows editors) would hide the first line from the parser
         loaded = trimesh.load(io.BytesIO(_read_all(path)[len(_BOM):]), file_type=path.suffix.lower()[1:],
                               force="mesh", process=False,
@@ -307,6 +308,8 @@ def _trimesh_load(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
     """Binary little-endian PLY (float32 xyz, int32 indices); equal arrays give equal bytes."""
+    import trimesh
+
     mesh = trimesh.Trimesh(
         np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=False
     )
@@ -321,10 +324,14 @@ def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None
 
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of a PLY written by write_ply, exactly as stored (no merging)."""
+    """Vertices and faces of a PLY written by write_ply, exactly as stored (no merging); any other
+    mesh file through trimesh, which is imported only then (the embree render worker reads
+    prepared PLYs without it)."""
     plain = read_plain_ply(path)
     if plain is not None:
         return plain
+    import trimesh
+
     mesh = trimesh.load(str(path), force="mesh", process=False)
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
 
