@@ -21,7 +21,7 @@ import torch
 
 from pipeline.core.schema import PRESENT_PARTS
 from train.data import DataSettings, make_loader
-from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
+from train.fit import load_run
 from train.model import SketchToPatches
 
 
@@ -66,21 +66,20 @@ def main() -> None:
     ap.add_argument("--pixels", action="store_true", help="probe the 16×16-pooled drawing instead of the encoder")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    ckpt = load_checkpoint(a.checkpoint)
-    s = ckpt["settings"]
-    tpl = template_from_checkpoint(ckpt)
+    run = load_run(a.checkpoint)
+    s, tpl = run.settings, run.template
     if a.pixels:
         model = None
     elif a.init:
-        torch.manual_seed(s["seed"])
-        model = SketchToPatches(tpl.initial_params()).eval()
+        torch.manual_seed(s.seed)
+        model = SketchToPatches(tpl.initial_params(), encoder_width=s.encoder_width).eval()
     else:
-        model = model_from_checkpoint(ckpt, tpl)
+        model = run.model
     parts = sorted(tpl.optional_parts)
-    xtr, ytr, vtr = codes(model, a.dataset, s["category"], "train", parts, s["image_size"])
-    xte, yte, vte = codes(model, a.dataset, s["category"], a.eval_split, parts, s["image_size"])
+    xtr, ytr, vtr = codes(model, a.dataset, s.category, "train", parts, s.image_size)
+    xte, yte, vte = codes(model, a.dataset, s.category, a.eval_split, parts, s.image_size)
     names = ["extent_x", "extent_y", "extent_z"] + [f"has_{p}" for p in parts]
-    out = {"weights": "pixels" if a.pixels else "init" if a.init else f"step {ckpt['step']}", "train views": len(xtr), f"{a.eval_split} views": len(xte)}
+    out = {"weights": "pixels" if a.pixels else "init" if a.init else f"step {run.step}", "train views": len(xtr), f"{a.eval_split} views": len(xte)}
     for alpha in (1e2, 1e3, 1e4):
         r2 = r2_probe(xtr, ytr, xte, yte, alpha)
         out[f"r2 (ridge {alpha:g})"] = {n: round(float(v), 3) for n, v in zip(names, r2)}

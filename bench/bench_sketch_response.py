@@ -21,16 +21,14 @@ import torch
 import webdataset as wds
 
 from train.data import read_png, sketch_table, to_network
-from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
+from train.fit import load_run
 
 
 @torch.no_grad()
 def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64) -> dict[str, float]:
-    ckpt = load_checkpoint(checkpoint)
-    s = ckpt["settings"]
-    template = template_from_checkpoint(ckpt)
-    model = model_from_checkpoint(ckpt, template)
-    urls = sorted(glob.glob(str(Path(dataset) / s["category"] / f"{split}-*.tar")))
+    run = load_run(checkpoint)
+    s, template, model = run.settings, run.template, run.model
+    urls = sorted(glob.glob(str(Path(dataset) / s.category / f"{split}-*.tar")))
     images = {"v0a": [], "v0b": [], "v1a": []}  # view 0 variant 0 / view 0 variant 1 / view 1 variant 0
     for raw in wds.WebDataset(urls, shardshuffle=False):
         table = sketch_table(raw)
@@ -38,7 +36,7 @@ def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64
         if len(views) < 2 or len(table[views[0]]) < 2:
             continue
         for key, name in (("v0a", table[views[0]][0]), ("v0b", table[views[0]][1]), ("v1a", table[views[1]][0])):
-            images[key].append(to_network(read_png(raw[name], s["image_size"])))
+            images[key].append(to_network(read_png(raw[name], s.image_size)))
         if len(images["v0a"]) >= limit:
             break
     pts = {}

@@ -22,29 +22,27 @@ from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from train.data import read_png, sketch_table, to_network
-from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
+from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
 from train.objective import Objective
 
 
 @torch.no_grad()
 def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256) -> np.ndarray:
-    ckpt = load_checkpoint(checkpoint)
-    s = ckpt["settings"]
-    template = template_from_checkpoint(ckpt)
-    model = model_from_checkpoint(ckpt, template)
+    run = load_run(checkpoint)
+    s, template, model = run.settings, run.template, run.model
     objective = Objective(template, 500)
-    urls = sorted(glob.glob(str(Path(dataset) / s["category"] / "test-*.tar")))
+    urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
         name = sketch_table(raw)[0][0]
-        sketch = read_png(raw[name], s["image_size"])
+        sketch = read_png(raw[name], s.image_size)
         x = torch.from_numpy(to_network(sketch))[None, None]
         patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
         keep = objective.mask_for(meta.get(PRESENT_PARTS))
         v, f = welded_mesh(patches[keep].double(), 12)
-        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s["category"] / meta["model_id"] / MESH_FILE)))
+        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s.category / meta["model_id"] / MESH_FILE)))
         gv, gf = read_ply(gt[0])
         big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
         images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]

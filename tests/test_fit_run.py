@@ -10,7 +10,7 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader
 from train.evaluate import evaluate, format_table, mean_output, metric_names
-from train.fit import FitSettings, fit, load_checkpoint, model_from_checkpoint
+from train.fit import FitSettings, fit, load_checkpoint, load_run
 from train.templates import load_template
 from train.losses.weights import LossWeights
 
@@ -64,8 +64,7 @@ def test_evaluate_reports_every_metric_for_model_and_template(shards, tmp_path):
 def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):
     out = tmp_path / "run"
     fit(settings(shards, out, 3, lr=1e-2), progress=False)
-    ck = load_checkpoint(out / "checkpoint.pt")
-    model = model_from_checkpoint(ck, load_template("sphere24"))
+    model = load_run(out / "checkpoint.pt").model
     data = DataSettings(eval_views=1, n_points=300, image_size=32)
     outs = torch.cat([model(b["images"], b["view_mask"]) for b in make_loader(shards, "knife", "train", data, 0, 3, train=False)])
     assert len(outs) == 8 and (outs.std(0).max() > 0)  # the network does respond to the sketches
@@ -94,7 +93,6 @@ def test_validation_keeps_the_best_checkpoint(shards, tmp_path):
 
 
 def test_checkpoint_keeps_its_template_when_the_named_file_is_rebuilt(shards, tmp_path):
-    from train.fit import template_from_checkpoint
     from train.templates import save_template
 
     path = tmp_path / "tpl.json"
@@ -102,8 +100,7 @@ def test_checkpoint_keeps_its_template_when_the_named_file_is_rebuilt(shards, tm
     out = tmp_path / "run"
     fit(settings(shards, out, 1, template=str(path)), progress=False)
     save_template(load_template("sphere54"), path)  # the file the run names is rebuilt, bigger
-    ck = load_checkpoint(out / "checkpoint.pt")
-    assert template_from_checkpoint(ck).num_patches == 24
+    assert load_run(out / "checkpoint.pt").template.num_patches == 24
     res = evaluate(out / "checkpoint.pt", shards, "test")  # would fail loading 24-patch weights into 54
     assert res["model"]["chamfer"] > 0
     assert fit(settings(shards, out, 2, template=str(path)), progress=False)["step"] == 2  # resume too
@@ -113,6 +110,7 @@ def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path
     out = tmp_path / "narrow"
     fit(settings(shards, out, 1, encoder_width=16), progress=False)
     ck = load_checkpoint(out / "checkpoint.pt")
-    model = model_from_checkpoint(ck, load_template("sphere24"))
-    assert model.encoder.out_features == 128
+    run = load_run(out / "checkpoint.pt")
+    assert run.settings.encoder_width == 16 and run.step == 1
+    assert run.model.encoder.out_features == 128
     assert ck["optimizer"]["param_groups"][0]["fused"]  # the fused Adam kernel on CPU

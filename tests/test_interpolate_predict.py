@@ -61,9 +61,10 @@ def test_interpolation_endpoints_equal_the_inputs(checkpoint, tmp_path):
         params = res["params"][space]
         assert params.shape == (3, 366)
         assert not np.allclose(params[0], params[-1])
-    from train.predict import load_predictor, load_sketches
+    from train.fit import load_run
+    from train.predict import load_sketches
 
-    model, _, _ = load_predictor(ck)
+    model = load_run(ck).model
     with torch.no_grad():
         pa, pb = model(load_sketches([a], 32))[0].numpy(), model(load_sketches([b], 32))[0].numpy()
     for space in ("patch", "latent"):

@@ -21,7 +21,7 @@ import torch
 
 from pipeline.core.atomic import write_json
 from train.data import DataSettings, make_loader
-from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
+from train.fit import load_run
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
 from train.geometry.intersections import count_intersecting_pairs
@@ -88,17 +88,15 @@ def evaluate(
     batch_size: int = 8,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``."""
-    ckpt = load_checkpoint(checkpoint)
-    s = ckpt["settings"]
-    template = template_from_checkpoint(ckpt)
-    model = model_from_checkpoint(ckpt, template)
-    objective = Objective(template, s["n_points"])
+    run = load_run(checkpoint)
+    s, template, model = run.settings, run.template, run.model
+    objective = Objective(template, s.n_points)
     names = metric_names(tuple(taus))
     # the same evaluation samples on every call, and for the network as for the template
     baselines = ("model", "template", "blind")
     generators = {name: torch.Generator().manual_seed(0) for name in baselines}
-    data = DataSettings(eval_views=views, n_points=s["n_points"], image_size=s["image_size"])
-    cat = category or s["category"]
+    data = DataSettings(eval_views=views, n_points=s.n_points, image_size=s.image_size)
+    cat = category or s.category
     loader = make_loader(dataset, cat, split, data, 0, batch_size, train=False)
     blind = mean_output(model, make_loader(dataset, cat, "train", data, 0, batch_size, train=False))[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
@@ -114,7 +112,7 @@ def evaluate(
             break
     result = {
         "checkpoint": str(checkpoint),
-        "step": int(ckpt["step"]),
+        "step": run.step,
         "split": split,
         "samples": count,
         "views": views,

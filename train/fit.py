@@ -113,10 +113,25 @@ def template_from_checkpoint(ckpt: dict) -> Template:
     return load_template(ckpt["settings"]["template"])
 
 
-def model_from_checkpoint(ckpt: dict, template: Template) -> SketchToPatches:
-    model = SketchToPatches(template.initial_params(), encoder_width=ckpt["settings"].get("encoder_width", 64))
+@dataclasses.dataclass(frozen=True)
+class TrainedRun:
+    """A checkpoint ready to use: the network (eval mode), the template it trained with, its
+    settings and the step it was saved at."""
+
+    model: SketchToPatches
+    template: Template
+    settings: FitSettings
+    step: int
+
+
+def load_run(path: str | Path) -> TrainedRun:
+    """The run saved at ``path`` (``checkpoint.pt`` or ``best.pt``), on the CPU."""
+    ckpt = load_checkpoint(path)
+    settings = from_dict(FitSettings, ckpt["settings"])  # older checkpoints: new fields keep defaults
+    template = template_from_checkpoint(ckpt)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width)
     model.load_state_dict(ckpt["model"])
-    return model.eval()
+    return TrainedRun(model.eval(), template, settings, int(ckpt["step"]))
 
 
 @torch.no_grad()

@@ -11,7 +11,8 @@ import torch
 from pipeline.core.atomic import atomic_path, write_json
 from train.export.obj import write_obj
 from train.export.quadmesh import quad_mesh
-from train.predict import load_predictor, load_sketches
+from train.fit import load_run
+from train.predict import load_sketches
 
 
 def lerp(a: torch.Tensor, b: torch.Tensor, steps: int) -> list[torch.Tensor]:
@@ -24,8 +25,8 @@ def interpolate(
     checkpoint: str | Path, sketch_a: list[str], sketch_b: list[str], out: str | Path, steps: int = 5, alpha: float = 25.0
 ) -> dict:
     """Writes ``patch_XX.obj`` and ``latent_XX.obj`` (XX = 0..steps-1) and ``params.npz``."""
-    model, template, ckpt = load_predictor(checkpoint)
-    size = ckpt["settings"]["image_size"]
+    run = load_run(checkpoint)
+    model, template, size = run.model, run.template, run.settings.image_size
     ia, ib = load_sketches(sketch_a, size), load_sketches(sketch_b, size)
     za, zb = model.latent(ia), model.latent(ib)
     pa, pb = model.decode_latent(za), model.decode_latent(zb)

@@ -28,9 +28,8 @@ from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
 from train.export.units import CadUnits
-from train.fit import load_checkpoint, model_from_checkpoint, template_from_checkpoint
+from train.fit import load_run
 from train.geometry.intersections import Intersections, mesh_intersections
-from train.model import SketchToPatches
 from train.templates import FreePoint, JunctionPoint, Template, save_template
 
 
@@ -45,12 +44,6 @@ def load_sketches(paths: list[str | Path], size: int) -> torch.Tensor:
             raise ModelError(p, f"not a readable image: {exc}") from exc
         imgs.append(to_network(img))
     return torch.from_numpy(np.stack(imgs))[None]
-
-
-def load_predictor(checkpoint: str | Path) -> tuple[SketchToPatches, Template, dict]:
-    ckpt = load_checkpoint(checkpoint)
-    template = template_from_checkpoint(ckpt)
-    return model_from_checkpoint(ckpt, template), template, ckpt
 
 
 def predicted_template(template: Template, params: torch.Tensor) -> Template:
@@ -134,9 +127,9 @@ def predict(
     parts: dict[str, bool] | None = None,
     units: CadUnits = CadUnits(),
 ) -> dict:
-    model, template, ckpt = load_predictor(checkpoint)
-    images = load_sketches(sketches, ckpt["settings"]["image_size"])
-    params = model(images)[0]
+    run = load_run(checkpoint)
+    template = run.template
+    params = run.model(load_sketches(sketches, run.settings.image_size))[0]
     out = Path(out)
     save_template(predicted_template(template, params), out / "patches.json")
     # a part switched off drops its patches and brings in its closing patches: still closed
