@@ -54,9 +54,6 @@ class FitSettings:
     steps: int = 1000
     batch_size: int = 8
     lr: float = 1e-4
-    encoder_lr: float | None = _arg(None, "learning rate of the encoder and hidden layers (default: --lr); the "
-                                    "output layer keeps --lr, since Adam moves each of its weights by about lr "
-                                    "and the shape by fan-in x that (docs/train.md)")
     seed: int = 0
     workers: int = 2  # data loader worker processes per rank
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
@@ -167,18 +164,10 @@ def _read_log(path: Path, upto: int) -> list[dict]:
         return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
 
 
-def make_optimizer(
-    model: SketchToPatches, lr: float, device: torch.device, encoder_lr: float | None = None
-) -> torch.optim.Optimizer:
+def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> torch.optim.Optimizer:
     """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
-    cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md). With ``encoder_lr`` everything
-    but the output layer learns at that rate and the output layer at ``lr``."""
-    fused = torch.device(device).type in ("cpu", "cuda")
-    if encoder_lr is None:
-        return torch.optim.Adam(model.parameters(), lr=lr, fused=fused)
-    head = list(model.out.parameters())
-    body = [p for p in model.parameters() if all(p is not q for q in head)]
-    return torch.optim.Adam([{"params": body, "lr": encoder_lr}, {"params": head, "lr": lr}], lr=lr, fused=fused)
+    cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md)."""
+    return torch.optim.Adam(model.parameters(), lr=lr, fused=torch.device(device).type in ("cpu", "cuda"))
 
 
 def train_step(
@@ -213,7 +202,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
-    optimizer = make_optimizer(model, settings.lr, info.device, settings.encoder_lr)
+    optimizer = make_optimizer(model, settings.lr, info.device)
     if ckpt is not None:
         saved = from_dict(FitSettings, ckpt["settings"])
         if saved.identity() != settings.identity():
