@@ -154,3 +154,22 @@ def test_car_groups_wheels_from_point_labels() -> None:
     batch = {"meta": [meta], "point_parts": torch.tensor([[0, 1, 2, 3, 2]])}
     assert obj.groups(batch, torch.device("cpu")).target.tolist() == [[1, 1, 0, 0, 0]]
     assert obj.groups({"meta": [meta], "point_parts": torch.tensor([[-1] * 5])}, torch.device("cpu")) is None
+
+
+def test_fit_flags_take_match_normals_from_the_template_file() -> None:
+    import argparse
+
+    from train.cli import _fit_args, fit_settings
+
+    parser = argparse.ArgumentParser()
+    _fit_args(parser)
+
+    def settings(*flags: str):
+        return fit_settings(parser.parse_args(["--dataset", "d", "--category", "c", "--out", "o", *flags]))
+
+    assert settings("--template", "bathtub").match_normals == 0.1  # hollowed part: thin walls
+    assert settings("--template", "mug").match_normals == 0.1
+    assert settings("--template", "airplane").match_normals == 0.0
+    assert settings("--template", "bathtub", "--match-normals", "0").match_normals == 0.0
+    air = settings("--template", "airplane", "--w-symmetry", "0.5")
+    assert air.weights.symmetry == 0.5 and air.weights.template_normal == pytest.approx(1e-4)

@@ -5,26 +5,42 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import add_arguments, from_args
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
-from train.losses.weights import LossWeights, add_weight_flags, weights_from_flags
+from train.losses.weights import add_weight_flags, weights_from_flags
+
+if TYPE_CHECKING:
+    from train.fit import FitSettings
 
 
 def _fit_args(p: argparse.ArgumentParser) -> None:
     from train.fit import FitSettings
 
-    add_arguments(p, FitSettings, skip=("weights",))  # one flag per setting, help from the field
+    add_arguments(p, FitSettings, skip=TEMPLATE_DEFAULTS)  # one flag per setting, help from the field
+    p.add_argument("--match-normals", type=float, default=None,
+                   help="normal-aware matching in training: pair points by (xyz, λ·normal), λ = this; 0: nearest "
+                   "point (default: the template file's, 0.1 for the thin-walled bathtub and mug; docs/train.md)")
     add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
 
 
-def _weights(a: argparse.Namespace) -> LossWeights:
-    """Paper weights, then the template file's regularizers, then what the command line sets."""
+# Training settings whose defaults come from the template file; the command line overrides them.
+TEMPLATE_DEFAULTS = ("weights", "match_normals")
+
+
+def fit_settings(a: argparse.Namespace) -> FitSettings:
+    """The run's settings from ``fit``'s flags: loss weights are the paper's, then the template
+    file's regularizers, then the flags; the matching λ is the template file's unless
+    --match-normals is given."""
+    from train.fit import FitSettings
     from train.templates import load_template
 
-    return weights_from_flags(a, load_template(a.template).regularizers)
+    tpl = load_template(a.template)
+    return from_args(FitSettings, a, skip=TEMPLATE_DEFAULTS, weights=weights_from_flags(a, tpl.regularizers),
+                     match_normals=tpl.match_normals if a.match_normals is None else a.match_normals)
 
 
 def _parts(items: list[str]) -> dict[str, bool]:
@@ -69,10 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     if a.cmd == "fit":
-        from train.fit import FitSettings, fit
+        from train.fit import fit
 
-        s = from_args(FitSettings, a, skip=("weights",), weights=_weights(a))
-        print(json.dumps(fit(s, progress=not a.no_progress)))
+        print(json.dumps(fit(fit_settings(a), progress=not a.no_progress)))
     elif a.cmd == "evaluate":
         from pathlib import Path
 

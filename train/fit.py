@@ -66,7 +66,8 @@ class FitSettings:
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
     device: str | None = None  # default: cuda when present, else cpu
     match_normals: float = _arg(0.0, "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
-                                "(0: nearest point; try 0.1 for thin-walled shapes, docs/train.md)")
+                                "(0: nearest point; the command line defaults to the template file's: 0.1 for "
+                                "the thin-walled bathtub and mug, docs/train.md)")
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:

@@ -35,6 +35,8 @@ A template is a deformable set of Coons patches that share control points. It is
       "regularizers": {"template_normal": 1e-4, "symmetry": 1.0},
                                        # optional: default weights of the regularizers this
                                        # template wants; a regularizer not named is off (weight 0)
+      "match_normals": 0.1,            # optional: default λ of normal-aware matching in training
+                                       # (thin walls whose two sides face opposite ways); 0 if absent
       "symmetry": {"plane_x": 0.0, "pairs": [[i, j], ...], "self": [k, ...]} or null,
                                        # mirror x = plane_x; pairs of point indices that mirror each
                                        # other, and points on the plane
@@ -123,6 +125,7 @@ class Template:
     closing_patches: dict[str, list[int]] = field(default_factory=dict)
     part_groups: dict[str, list[str]] = field(default_factory=dict)
     regularizers: dict[str, float] = field(default_factory=dict)
+    match_normals: float = 0.0  # training's default λ of normal-aware matching (FitSettings.match_normals)
 
     def __post_init__(self) -> None:
         self._compile()
@@ -206,6 +209,8 @@ class Template:
         for name in self.regularizers:
             if name not in regularizer_names():
                 raise TemplateError(f"regularizer {name!r}: expected one of {regularizer_names()}")
+        if not (math.isfinite(self.match_normals) and self.match_normals >= 0):
+            raise TemplateError(f"match_normals: expected a number >= 0, got {self.match_normals!r}")
         grouped = [lab for labels in self.part_groups.values() for lab in labels]
         if len(grouped) != len(set(grouped)):
             raise TemplateError("part_groups: a label is in more than one group")
@@ -482,6 +487,7 @@ class Template:
             # written only when set, so templates without them keep their bytes
             **({"part_groups": {k: list(v) for k, v in sorted(self.part_groups.items())}} if self.part_groups else {}),
             **({"regularizers": dict(sorted(self.regularizers.items()))} if self.regularizers else {}),
+            **({"match_normals": float(self.match_normals)} if self.match_normals else {}),
         }
 
     @classmethod
@@ -512,6 +518,7 @@ class Template:
             closing_patches={k: [int(i) for i in v] for k, v in data.get("closing_patches", {}).items()},
             part_groups={k: [str(x) for x in v] for k, v in data.get("part_groups", {}).items()},
             regularizers={k: float(v) for k, v in data.get("regularizers", {}).items()},
+            match_normals=float(data.get("match_normals", 0.0)),
         )
 
 
