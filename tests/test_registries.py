@@ -180,7 +180,7 @@ LOSS_PROBE = textwrap.dedent('''
     from train.losses.terms import LossTerm, register_term
     register_term(LossTerm("spread", lambda x: (x.ev.points ** 2).sum(-1).mean((1, 2)), 0.5))
     import argparse
-    from train.cli import _fit_args, _weights
+    from train.cli import _fit_args, fit_settings
     from train.fit import CSV_FIELDS
     from train.losses.weights import LossWeights
     from train.losses.total import weighted_sum
@@ -191,8 +191,8 @@ LOSS_PROBE = textwrap.dedent('''
     _fit_args(p)
     base = ["--dataset", "d", "--category", "knife", "--template", "sphere24", "--out", "o"]
     flags = sorted(o for a in p._actions for o in a.option_strings if "spread" in o)
-    w_set = _weights(p.parse_args(base + ["--w-spread", "0.25"])).spread
-    w_off = _weights(p.parse_args(base + ["--no-spread"])).spread
+    w_set = fit_settings(p.parse_args(base + ["--w-spread", "0.25"])).weights.spread
+    w_off = fit_settings(p.parse_args(base + ["--no-spread"])).weights.spread
     t = load_template("sphere24")
     obj = Objective(t, n_points=200)
     prm = t.initial_params()[None]

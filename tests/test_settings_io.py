@@ -88,8 +88,10 @@ def test_derived_flags_parse_into_the_same_settings() -> None:
 
 
 def test_train_fit_has_a_flag_for_every_setting() -> None:
-    from train.cli import _fit_args
+    from train.cli import _fit_args, fit_settings
     from train.fit import FitSettings
+    from train.losses.weights import template_weights
+    from train.templates import load_template
 
     p = argparse.ArgumentParser()
     _fit_args(p)
@@ -98,8 +100,10 @@ def test_train_fit_has_a_flag_for_every_setting() -> None:
     assert wanted <= flags and "--points" in flags
     a = p.parse_args(["--dataset", "d", "--category", "mug", "--template", "mug", "--out", "o",
                       "--points", "123", "--lr", "0.5", "--device", "cpu"])
-    s = from_args(FitSettings, a, skip=("weights",))
-    assert s == FitSettings(dataset="d", category="mug", template="mug", out="o", n_points=123, lr=0.5, device="cpu")
+    s = fit_settings(a)  # the template file's defaults: its regularizers' weights, its matching λ
+    mug = load_template("mug")
+    assert s == FitSettings(dataset="d", category="mug", template="mug", out="o", n_points=123, lr=0.5, device="cpu",
+                            weights=template_weights(mug.regularizers), match_normals=mug.match_normals)
 
 
 def test_build_parameters_are_the_build_settings_fields() -> None:
