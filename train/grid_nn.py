@@ -35,55 +35,48 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-_OCCUPANCY = 16.0  # target mean points per occupied cell
-_BUDGET = 729  # cell visits (shells 0-4) before a query is left to the k-d tree
-_EMPTY = np.iinfo(np.int64).min
+_OCCUPANCY = 16.0  # target mean points per occupied bucket
+_BUDGET = 729  # cell visits (a box of 9³) before a query is left to the k-d tree
 
 
 @numba.njit(cache=True, inline="always")
-def _slot(cx: int, cy: int, cz: int, mask: int) -> int:
+def _bucket(x: float, y: float, z: float, h: float, mask: int) -> int:
+    cx, cy, cz = np.int64(np.floor(x / h)), np.int64(np.floor(y / h)), np.int64(np.floor(z / h))
+    return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
+
+
+@numba.njit(cache=True, inline="always")
+def _cell_bucket(cx: int, cy: int, cz: int, mask: int) -> int:
     return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
 
 
 @numba.njit(cache=True)
-def _build(ref, h, keys, count, slot_of, mask):
-    """Hash every reference point's cell into the first ``mask + 1`` slots; returns the number
-    of occupied cells."""
-    keys[: mask + 1, 0] = _EMPTY
+def _build(points, h, count, bucket_of, mask):
+    """Count the points of each bucket (first ``mask + 1``); returns how many are occupied."""
     count[: mask + 1] = 0
     occupied = 0
-    for i in range(ref.shape[0]):
-        cx = np.int64(np.floor(ref[i, 0] / h))
-        cy = np.int64(np.floor(ref[i, 1] / h))
-        cz = np.int64(np.floor(ref[i, 2] / h))
-        s = _slot(cx, cy, cz, mask)
-        while True:
-            if keys[s, 0] == _EMPTY:
-                keys[s, 0], keys[s, 1], keys[s, 2] = cx, cy, cz
-                occupied += 1
-                break
-            if keys[s, 0] == cx and keys[s, 1] == cy and keys[s, 2] == cz:
-                break
-            s = (s + 1) & mask
-        slot_of[i] = s
+    for i in range(points.shape[0]):
+        s = _bucket(points[i, 0], points[i, 1], points[i, 2], h, mask)
+        bucket_of[i] = s
+        occupied += count[s] == 0
         count[s] += 1
     return occupied
 
 
 @numba.njit(cache=True)
-def _cell_size(ref, keys, count, slot_of):
-    """Cell size giving about ``_OCCUPANCY`` points per occupied cell, and that count of cells."""
+def _cell_size(ref, count, bucket_of):
+    """Cell size giving about ``_OCCUPANCY`` points per occupied bucket, and that count."""
     m = ref.shape[0]
-    mask = keys.shape[0] - 1
+    mask = count.shape[0] - 1
     lo = np.array([ref[:, 0].min(), ref[:, 1].min(), ref[:, 2].min()])
     hi = np.array([ref[:, 0].max(), ref[:, 1].max(), ref[:, 2].max()])
     ext = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
-    if ext <= 0.0:
-        ext = max(abs(lo[0]), abs(lo[1]), abs(lo[2]), 1.0)
     span = max(abs(lo[0]), abs(lo[1]), abs(lo[2]), abs(hi[0]), abs(hi[1]), abs(hi[2]))
+    if ext <= 0.0:
+        ext = max(span, 1.0)
     h_min = span * 1e-12  # duplicates cannot be split: stop shrinking somewhere
     h = ext * np.sqrt(_OCCUPANCY / m)
-    occ = _build(ref, h, keys, count, slot_of, mask)
+    occ = _build(ref, h, count, bucket_of, mask)
     for _ in range(40):
         ratio = m / occ
         if ratio > 1.5 * _OCCUPANCY and h > h_min:
@@ -92,28 +85,61 @@ def _cell_size(ref, keys, count, slot_of):
             new_h = h * min((_OCCUPANCY / ratio) ** (1.0 / 3.0), 4.0)
         else:
             break
-        h, occ = new_h, _build(ref, new_h, keys, count, slot_of, mask)
+        h, occ = new_h, _build(ref, new_h, count, bucket_of, mask)
     return h, occ
 
 
+@numba.njit(cache=True, inline="always")
+def _scan(q0, q1, q2, lo, hi, pts, order, best, best_i, best_k):
+    for j in range(lo, hi):
+        d0 = q0 - pts[j, 0]
+        d1 = q1 - pts[j, 1]
+        d2 = q2 - pts[j, 2]
+        d = d0 * d0 + d1 * d1 + d2 * d2
+        if d < best or (d == best and order[j] < best_i):
+            best, best_i, best_k = d, order[j], j
+    return best, best_i, best_k
+
+
 @numba.njit(cache=True)
-def _query_one(q0, q1, q2, h, keys, start, count, pts, order, mask, budget, guess):
+def _query_one(q0, q1, q2, h, start, count, pts, order, mask, budget, guess):
     """Position in ``pts`` of the nearest point, or -1 past the budget. ``guess``: a position to
-    start from (any point: a near one lets the cell test skip most cells), or -1."""
-    cx = np.int64(np.floor(q0 / h))
-    cy = np.int64(np.floor(q1 / h))
-    cz = np.int64(np.floor(q2 / h))
-    # Safety margin for the face distances: cell indices come from rounded divisions.
+    start from (any point: a near one bounds the search), or -1."""
+    # Margin for cell bounds: a point's cell comes from a rounded division.
     eps = 1e-12 * (abs(q0) + abs(q1) + abs(q2) + h) + 1e-300
-    best = np.inf
-    best_i = np.int64(-1)
-    best_k = np.int64(-1)
+    best, best_i, best_k = np.inf, np.int64(-1), np.int64(-1)
     if guess >= 0:
         d0, d1, d2 = q0 - pts[guess, 0], q1 - pts[guess, 1], q2 - pts[guess, 2]
         best, best_i, best_k = d0 * d0 + d1 * d1 + d2 * d2, order[guess], guess
-    visits = 0
+    s = _bucket(q0, q1, q2, h, mask)
+    best, best_i, best_k = _scan(q0, q1, q2, start[s], start[s] + count[s], pts, order, best, best_i, best_k)
+    cx, cy, cz = np.int64(np.floor(q0 / h)), np.int64(np.floor(q1 / h)), np.int64(np.floor(q2 / h))
     r = 0
+    if best < np.inf:
+        # Every point within the best distance lies in the box of cells around that ball.
+        rho = np.sqrt(best) + eps
+        x0, x1 = np.int64(np.floor((q0 - rho) / h)), np.int64(np.floor((q0 + rho) / h))
+        y0, y1 = np.int64(np.floor((q1 - rho) / h)), np.int64(np.floor((q1 + rho) / h))
+        z0, z1 = np.int64(np.floor((q2 - rho) / h)), np.int64(np.floor((q2 + rho) / h))
+        if (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) <= budget:
+            for x in range(x0, x1 + 1):
+                gx = max(x * h - q0, q0 - (x + 1) * h, eps) - eps
+                for y in range(y0, y1 + 1):
+                    gy = max(y * h - q1, q1 - (y + 1) * h, eps) - eps
+                    for z in range(z0, z1 + 1):
+                        gz = max(z * h - q2, q2 - (z + 1) * h, eps) - eps
+                        # the cell's box is farther than the best so far: skip it
+                        if gx * gx + gy * gy + gz * gz > best or (x == cx and y == cy and z == cz):
+                            continue
+                        s = _cell_bucket(x, y, z, mask)
+                        best, best_i, best_k = _scan(q0, q1, q2, start[s], start[s] + count[s], pts, order,
+                                                     best, best_i, best_k)  # fmt: skip
+            return best_k
+    # No near candidate: cubic shells of cells around the query's cell until the best distance
+    # is within the searched cube (every unsearched point lies beyond one of its faces).
+    visits = 0
     while True:
+        r += 1
         for dx in range(-r, r + 1):
             for dy in range(-r, r + 1):
                 edge = dx == -r or dx == r or dy == -r or dy == r
@@ -123,25 +149,14 @@ def _query_one(q0, q1, q2, h, keys, start, count, pts, order, mask, budget, gues
                     x, y, z = cx + dx, cy + dy, cz + dz
                     dz += step
                     visits += 1
-                    # Lower bound from q to this cell's box: skip cells that cannot win.
                     gx = max(x * h - q0, q0 - (x + 1) * h, eps) - eps
                     gy = max(y * h - q1, q1 - (y + 1) * h, eps) - eps
                     gz = max(z * h - q2, q2 - (z + 1) * h, eps) - eps
                     if gx * gx + gy * gy + gz * gz > best:
                         continue
-                    s = _slot(x, y, z, mask)
-                    while keys[s, 0] != _EMPTY:
-                        if keys[s, 0] == x and keys[s, 1] == y and keys[s, 2] == z:
-                            for j in range(start[s], start[s] + count[s]):
-                                d0 = q0 - pts[j, 0]
-                                d1 = q1 - pts[j, 1]
-                                d2 = q2 - pts[j, 2]
-                                d = d0 * d0 + d1 * d1 + d2 * d2
-                                if d < best or (d == best and order[j] < best_i):
-                                    best, best_i, best_k = d, order[j], j
-                            break
-                        s = (s + 1) & mask
-        # Every unsearched point lies beyond a face of the cube of cells searched so far.
+                    s = _cell_bucket(x, y, z, mask)
+                    best, best_i, best_k = _scan(q0, q1, q2, start[s], start[s] + count[s], pts, order,
+                                                 best, best_i, best_k)  # fmt: skip
         face = min(
             q0 - (cx - r) * h, (cx + r + 1) * h - q0,
             q1 - (cy - r) * h, (cy + r + 1) * h - q1,
@@ -151,7 +166,6 @@ def _query_one(q0, q1, q2, h, keys, start, count, pts, order, mask, budget, gues
             return best_k
         if visits > budget:
             return -1  # far from every reference point: left to the k-d tree
-        r += 1
 
 
 @numba.njit(cache=True)
@@ -160,40 +174,37 @@ def _nearest_batch(query, reference, out, first_copy):
     size = 1
     while size < 4 * m:
         size *= 2
-    keys = np.empty((size, 3), np.int64)
     start = np.empty(size, np.int64)
     count = np.empty(size, np.int64)
-    slot_of = np.empty(m, np.int64)
+    bucket_of = np.empty(m, np.int64)
     pts = np.empty((m, 3), np.float64)
     order = np.empty(m, np.int64)
-    fill = np.empty(size, np.int64)
     nq = query.shape[1]
     qsize = 1
     while qsize < 2 * nq:
         qsize *= 2
-    qkeys = np.empty((qsize, 3), np.int64)
     qcount = np.empty(qsize, np.int64)
-    qslot = np.empty(nq, np.int64)
+    qbucket = np.empty(nq, np.int64)
     qorder = np.empty(nq, np.int64)
-    budget = _BUDGET
     for b in range(b_count):
         ref = reference[b]
-        h, occ = _cell_size(ref, keys, count, slot_of)
+        h, occ = _cell_size(ref, count, bucket_of)
         tsize = 1
         while tsize < 4 * occ and tsize < size:  # a small table stays in cache
             tsize *= 2
-        _build(ref, h, keys, count, slot_of, tsize - 1)
+        _build(ref, h, count, bucket_of, tsize - 1)
         total = 0
         for s in range(tsize):
             start[s] = total
-            fill[s] = total
             total += count[s]
-        for i in range(m):  # points sorted by cell, stable: index order inside a cell
-            k = fill[slot_of[i]]
-            fill[slot_of[i]] = k + 1
+        for i in range(m):  # points sorted by bucket, stable: index order inside a bucket
+            k = start[bucket_of[i]]
+            start[bucket_of[i]] = k + 1
             pts[k, 0], pts[k, 1], pts[k, 2] = ref[i, 0], ref[i, 1], ref[i, 2]
             order[k] = i
-        for s in range(tsize):  # lowest index of each point's exact duplicates (same cell)
+        for s in range(tsize):
+            start[s] -= count[s]
+        for s in range(tsize):  # lowest index of each point's exact duplicates (same bucket)
             for k in range(start[s], start[s] + count[s]):
                 first_copy[b, order[k]] = order[k]
                 for k2 in range(start[s], k):
@@ -201,19 +212,19 @@ def _nearest_batch(query, reference, out, first_copy):
                         first_copy[b, order[k]] = order[k2]
                         break
         # Queries grouped by cell: each starts from its predecessor's answer, a near point.
-        _build(query[b], h, qkeys, qcount, qslot, qsize - 1)
+        _build(query[b], h, qcount, qbucket, qsize - 1)
         total = 0
         for s in range(qsize):
             c = qcount[s]
             qcount[s] = total
             total += c
         for i in range(nq):
-            qorder[qcount[qslot[i]]] = i
-            qcount[qslot[i]] += 1
+            qorder[qcount[qbucket[i]]] = i
+            qcount[qbucket[i]] += 1
         guess = np.int64(-1)
         for i in qorder:
-            k = _query_one(query[b, i, 0], query[b, i, 1], query[b, i, 2], h, keys, start, count,
-                           pts, order, tsize - 1, budget, guess)  # fmt: skip
+            k = _query_one(query[b, i, 0], query[b, i, 1], query[b, i, 2], h, start, count, pts, order,
+                           tsize - 1, _BUDGET, guess)  # fmt: skip
             out[b, i] = order[k] if k >= 0 else -1
             if k >= 0:
                 guess = k
