@@ -27,11 +27,12 @@ Cost: a query pays for the points of the cells its candidate ball touches, so th
 most when the two clouds are close. On training's matching at the start (airplane template
 outputs + noise vs real targets, median distance 0.045, batch 8, ~7,000 points each way) it is
 about 1.5× cheaper than a k-d tree per item; with the clouds on each other (late training)
-about 5× (``bench/bench_matching.py``).
+about 2.6× (``bench/bench_matching.py [--on-target]``).
 
 The first call compiles (about 8 s); ``cache=True`` keeps the machine code in numba's cache
-(``__pycache__`` beside this file, or ``NUMBA_CACHE_DIR`` where that is read-only), so later
-processes — data-loader workers, DDP ranks — load it (~0.3 s) instead of compiling.
+(``__pycache__`` beside this file, else a user-wide cache folder or ``NUMBA_CACHE_DIR``), so later
+processes (DDP ranks; matching runs in the main process, not in loader workers) load it (~0.5 s)
+instead of compiling.
 """
 
 from __future__ import annotations
@@ -174,41 +175,51 @@ def _query_one(q0, q1, q2, h, start, count, pts, order, mask, budget, guess):
 
 
 @numba.njit(cache=True)
+def _pow2(n):
+    p = 1
+    while p < n:
+        p *= 2
+    return p
+
+
+@numba.njit(cache=True)
+def _sort_by_bucket(bucket_of, count, n_buckets, start, order):
+    """``order``: point indices sorted by bucket (stable: index order inside one); ``start[s]``:
+    where bucket ``s`` begins in it."""
+    total = 0
+    for s in range(n_buckets):
+        start[s] = total
+        total += count[s]
+    for i in range(bucket_of.shape[0]):
+        order[start[bucket_of[i]]] = i
+        start[bucket_of[i]] += 1
+    for s in range(n_buckets):
+        start[s] -= count[s]
+
+
+@numba.njit(cache=True)
 def _nearest_batch(query, reference, out, first_copy):
     b_count, m = reference.shape[0], reference.shape[1]
-    size = 1
-    while size < 4 * m:
-        size *= 2
+    size = _pow2(4 * m)
     start = np.empty(size, np.int64)
     count = np.empty(size, np.int64)
     bucket_of = np.empty(m, np.int64)
     pts = np.empty((m, 3), np.float64)
     order = np.empty(m, np.int64)
     nq = query.shape[1]
-    qsize = 1
-    while qsize < 2 * nq:
-        qsize *= 2
+    qsize = _pow2(2 * nq)
     qcount = np.empty(qsize, np.int64)
+    qstart = np.empty(qsize, np.int64)
     qbucket = np.empty(nq, np.int64)
     qorder = np.empty(nq, np.int64)
     for b in range(b_count):
         ref = reference[b]
         h, occ = _cell_size(ref, count, bucket_of)
-        tsize = 1
-        while tsize < 4 * occ and tsize < size:  # a small table stays in cache
-            tsize *= 2
+        tsize = min(_pow2(4 * occ), size)  # a small table stays in cache
         _build(ref, h, count, bucket_of, tsize - 1)
-        total = 0
-        for s in range(tsize):
-            start[s] = total
-            total += count[s]
-        for i in range(m):  # points sorted by bucket, stable: index order inside a bucket
-            k = start[bucket_of[i]]
-            start[bucket_of[i]] = k + 1
-            pts[k, 0], pts[k, 1], pts[k, 2] = ref[i, 0], ref[i, 1], ref[i, 2]
-            order[k] = i
-        for s in range(tsize):
-            start[s] -= count[s]
+        _sort_by_bucket(bucket_of, count, tsize, start, order)
+        for k in range(m):
+            pts[k, 0], pts[k, 1], pts[k, 2] = ref[order[k], 0], ref[order[k], 1], ref[order[k], 2]
         for s in range(tsize):  # lowest index of each point's exact duplicates (same bucket)
             for k in range(start[s], start[s] + count[s]):
                 first_copy[b, order[k]] = order[k]
@@ -218,14 +229,7 @@ def _nearest_batch(query, reference, out, first_copy):
                         break
         # Queries grouped by cell: each starts from its predecessor's answer, a near point.
         _build(query[b], h, qcount, qbucket, qsize - 1)
-        total = 0
-        for s in range(qsize):
-            c = qcount[s]
-            qcount[s] = total
-            total += c
-        for i in range(nq):
-            qorder[qcount[qbucket[i]]] = i
-            qcount[qbucket[i]] += 1
+        _sort_by_bucket(qbucket, qcount, qsize, qstart, qorder)
         guess = np.int64(-1)
         for i in qorder:
             k = _query_one(query[b, i, 0], query[b, i, 1], query[b, i, 2], h, start, count, pts, order,
