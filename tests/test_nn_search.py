@@ -121,3 +121,10 @@ def test_training_loss_terms_identical_with_kdtree_matching(template: str, match
     tree = obj.batch_terms(params, batch, st, w)
     for name in grid:
         assert torch.equal(grid[name], tree[name]), name
+
+
+def test_far_candidate_does_not_overflow_the_box() -> None:
+    # consecutive queries of one bucket far apart: the first answer is a useless start for the next
+    r = np.array([[[0.0, 0, 0], [1e8, 1e8, 1e8], [1e8 + 1, 1e8, 1e8]]])
+    q = np.array([[[1.0, 0, 0], [1e8 + 0.9, 1e8, 1e8], [2.0, 0, 0]]])
+    np.testing.assert_array_equal(grid_nearest(q, r), [[0, 2, 0]])

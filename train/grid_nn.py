@@ -87,7 +87,7 @@ def _cell_size(ref, count, bucket_of):
         ratio = m / occ
         if ratio > 1.5 * _OCCUPANCY and h > h_min:
             new_h = max(h * min(max(np.sqrt(_OCCUPANCY / ratio), 1.0 / 64.0), 0.8), h_min)
-        elif ratio < _OCCUPANCY / 3.0:
+        elif ratio < _OCCUPANCY / 3.0 and occ > 1:
             new_h = h * min((_OCCUPANCY / ratio) ** (1.0 / 3.0), 4.0)
         else:
             break
@@ -127,7 +127,8 @@ def _query_one(q0, q1, q2, h, start, count, pts, order, mask, budget, guess):
         x0, x1 = np.int64(np.floor((q0 - rho) / h)), np.int64(np.floor((q0 + rho) / h))
         y0, y1 = np.int64(np.floor((q1 - rho) / h)), np.int64(np.floor((q1 + rho) / h))
         z0, z1 = np.int64(np.floor((q2 - rho) / h)), np.int64(np.floor((q2 + rho) / h))
-        if (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) <= budget:
+        nx, ny, nz = x1 - x0 + 1, y1 - y0 + 1, z1 - z0 + 1
+        if nx <= budget and ny <= budget and nz <= budget and nx * ny * nz <= budget:  # no overflow
             for x in range(x0, x1 + 1):
                 gx = max(x * h - q0, q0 - (x + 1) * h, eps) - eps
                 for y in range(y0, y1 + 1):
