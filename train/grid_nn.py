@@ -42,18 +42,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 _OCCUPANCY = 16.0  # target mean points per occupied bucket
-_BUDGET = 729  # cell visits (a box of 9³) before a query is left to the k-d tree
-
-
-@numba.njit(cache=True, inline="always")
-def _bucket(x: float, y: float, z: float, h: float, mask: int) -> int:
-    cx, cy, cz = np.int64(np.floor(x / h)), np.int64(np.floor(y / h)), np.int64(np.floor(z / h))
-    return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
+_BUDGET = 729  # cells (a 9³ box, or shells) a query may visit before the k-d tree answers it
 
 
 @numba.njit(cache=True, inline="always")
 def _cell_bucket(cx: int, cy: int, cz: int, mask: int) -> int:
     return ((cx * 73856093) ^ (cy * 19349663) ^ (cz * 83492791)) & mask
+
+
+@numba.njit(cache=True, inline="always")
+def _bucket(x: float, y: float, z: float, h: float, mask: int) -> int:
+    return _cell_bucket(np.int64(np.floor(x / h)), np.int64(np.floor(y / h)), np.int64(np.floor(z / h)), mask)
 
 
 @numba.njit(cache=True)
