@@ -1,8 +1,10 @@
 """Nearest neighbours without a dense N×M matrix on CPU, with differentiable distances.
 
-The search runs on detached coordinates (scipy cKDTree per batch item on CPU, chunked
-torch.cdist on CUDA); distances are then recomputed in torch from the gathered neighbours so
-gradients flow to both point sets.
+The search runs on detached coordinates: on CPU, 3-D points go to the exact hashed-grid search
+of ``train.grid_nn`` (several times cheaper than a k-d tree per batch item on training's point
+clouds), other dimensions (normal-aware matching searches in 6-D) to scipy's cKDTree per batch
+item; on CUDA, chunked torch.cdist. Distances are then recomputed in torch from the gathered
+neighbours so gradients flow to both point sets.
 """
 
 from __future__ import annotations
@@ -12,11 +14,15 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
+from train.grid_nn import grid_nearest
+
 
 def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tensor:
     """Index of the nearest ``reference`` point for each ``query`` point.
 
-    ``query (B, N, 3)``, ``reference (B, M, 3)`` → ``(B, N)`` int64 on the query's device.
+    ``query (B, N, D)``, ``reference (B, M, D)`` → ``(B, N)`` int64 on the query's device. Ties
+    (equal distances, e.g. coincident reference points) go to the lowest index on the 3-D CPU
+    path; elsewhere to whichever the k-d tree or argmin picks.
     """
     q, r = query.detach(), reference.detach()
     if q.is_cuda:
@@ -26,6 +32,9 @@ def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tens
         return torch.cat(out, dim=1)
     qn = q.double().cpu().numpy()
     rn = r.double().cpu().numpy()
+    idx = grid_nearest(qn, rn) if qn.shape[-1] == 3 else None
+    if idx is not None:
+        return torch.from_numpy(idx).to(query.device)
     idx = np.empty(qn.shape[:2], dtype=np.int64)
     for b in range(qn.shape[0]):
         idx[b] = cKDTree(rn[b]).query(qn[b], k=1, workers=1)[1]
