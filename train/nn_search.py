@@ -1,8 +1,8 @@
 """Nearest neighbours without a dense N×M matrix on CPU, with differentiable distances.
 
 The search runs on detached coordinates: on CPU, 3-D points go to the exact hashed-grid search
-of ``train.grid_nn`` (several times cheaper than a k-d tree per batch item on training's point
-clouds), other dimensions (normal-aware matching searches in 6-D) to scipy's cKDTree per batch
+of ``train.grid_nn`` (1.5-2.6x cheaper than a k-d tree per batch item on training's point
+clouds, BENCHMARKS.md), other dimensions (normal-aware matching searches in 6-D) to scipy's cKDTree per batch
 item; on CUDA, chunked torch.cdist. Distances are then recomputed in torch from the gathered
 neighbours so gradients flow to both point sets.
 """
