@@ -22,20 +22,13 @@ import time
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from train.data import DataSettings, make_loader
 from train.geometry.coons import evaluate_patches
+from train.losses.chamfer import matching_sets
+from train.nn_search import kdtree_nearest
 from train.objective import Objective
 from train.templates import load_template
-
-
-def kdtree_nearest(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The former CPU path of ``nearest_indices``: one cKDTree build + query per batch item."""
-    idx = np.empty(query.shape[:2], dtype=np.int64)
-    for b in range(query.shape[0]):
-        idx[b] = cKDTree(reference[b]).query(query[b], k=1, workers=1)[1]
-    return idx
 
 
 def matching_inputs(dataset: str, category: str, template: str, batch: int, noise: float, on_target: bool = False):
@@ -52,10 +45,8 @@ def matching_inputs(dataset: str, category: str, template: str, batch: int, nois
     target = b["points"][..., :3].double()
     if on_target:
         pp, mask = target + noise * torch.randn(target.shape, generator=gen, dtype=target.dtype), None
-    search = pp
-    if mask is not None:
-        valid = mask[:, :, None].expand(ev.points.shape[:3]).reshape(batch, -1)
-        search = torch.where(valid[..., None], pp, torch.full_like(pp, 1e6))
+    valid = None if mask is None else mask[:, :, None].expand(ev.points.shape[:3])
+    pp, target, search = matching_sets(pp, target, valid)  # (B, N, 3) points flatten the same
     return [(pp.numpy(), target.numpy()), (target.numpy(), search.numpy())]  # match_points' two searches
 
 

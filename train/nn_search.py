@@ -35,10 +35,16 @@ def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tens
     idx = grid_nearest(qn, rn) if qn.shape[-1] == 3 else None
     if idx is not None:
         return torch.from_numpy(idx).to(query.device)
-    idx = np.empty(qn.shape[:2], dtype=np.int64)
-    for b in range(qn.shape[0]):
-        idx[b] = cKDTree(rn[b]).query(qn[b], k=1, workers=1)[1]
-    return torch.from_numpy(idx).to(query.device)
+    return torch.from_numpy(kdtree_nearest(qn, rn)).to(query.device)
+
+
+def kdtree_nearest(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """One scipy cKDTree build + query per batch item: any dimension (``(B, N, D)``, ``(B, M, D)``
+    → ``(B, N)``); the CPU path for D ≠ 3 and the reference the grid is measured against."""
+    idx = np.empty(query.shape[:2], dtype=np.int64)
+    for b in range(query.shape[0]):
+        idx[b] = cKDTree(reference[b]).query(query[b], k=1, workers=1)[1]
+    return idx
 
 
 def gather_points(points: Tensor, idx: Tensor) -> Tensor:

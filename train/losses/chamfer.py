@@ -84,6 +84,21 @@ def match_points(
     through the wall. Opposite normals add 2λ to the search distance, so λ above the half wall
     thickness keeps matches on the near side. Only the choice of partner changes: the losses
     still measure plain 3-D distances to it."""
+    pp, target, search = matching_sets(patch_points, target_points, valid, groups, normals, normal_weight)
+    return Matches(nearest_indices(pp, target), nearest_indices(target, search))
+
+
+def matching_sets(
+    patch_points: Tensor,
+    target_points: Tensor,
+    valid: Tensor | None = None,
+    groups: Groups | None = None,
+    normals: tuple[Tensor, Tensor] | None = None,
+    normal_weight: float = 0.0,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The point sets ``match_points`` searches (detached): patch samples and target, shifted
+    apart by group and extended by λ·normal as asked, and the patch samples with invalid ones
+    moved far away (the reference of the target → patch search)."""
     pp = _flat(patch_points, 1).detach()
     target = target_points.detach()
     if groups is not None:
@@ -97,7 +112,7 @@ def match_points(
     search = pp
     if valid is not None:
         search = torch.where(_flat(valid, 0)[..., None], search, torch.full_like(search, _FAR))
-    return Matches(nearest_indices(pp, target), nearest_indices(target, search))
+    return pp, target, search
 
 
 def _weights(jacobian: Tensor, valid: Tensor | None) -> Tensor:
