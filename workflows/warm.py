@@ -27,8 +27,8 @@ def forks_per_task(argv: Sequence[str]) -> bool:
 
 
 def warm_stage_code() -> None:
-    """Import every stage and run the vectorizer once on a tiny drawing (compiles skan's numba
-    functions in this process)."""
+    """Import every stage and run the vectorizer and the pencil once on a tiny drawing (compiles
+    skan's and the pencil's numba functions in this process)."""
     import cv2
     import numpy as np
 
@@ -40,3 +40,7 @@ def warm_stage_code() -> None:
     cv2.rectangle(img, (8, 8), (40, 40), 0, 2)
     cv2.line(img, (8, 24), (40, 24), 0, 2)  # a T-junction too: junction code paths compile
     vectorize(img)
+    # the pencil's compiled steps too (augment.stroke_raster)
+    from augment.pencil import draw_pencil
+
+    draw_pencil([np.array([[4.0, 4.0], [20.0, 12.0]]), np.array([[8.0, 30.0]])], 32, 1.0, np.random.default_rng(0))
