@@ -125,6 +125,8 @@ def main() -> int:
     ap.add_argument("--batch-size", type=int, default=16)
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_pipeline"))
     ap.add_argument("--backends", default="embree,freestyle")
+    ap.add_argument("--prepare-settings", default="{}",
+                    help='prepare overrides as JSON, e.g. \'{"resolution": 2000, "max_faces": 8000}\' (bench_envelope.py)')
     ap.add_argument("--out", type=Path, default=None, help="also write the figures as JSON here")
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -142,6 +144,7 @@ def main() -> int:
     def settings(backend: str) -> BuildSettings:
         return BuildSettings(source=str(args.work / "corpus"), models_per_category=0, views=args.views,
                              variants=args.variants, render_overrides=json.dumps({"backend": backend}),
+                             prepare_overrides=args.prepare_settings,
                              work_dir=args.work / "work", dataset_dir=args.work / f"ds-{backend}",
                              batch_size=args.batch_size)
 
@@ -154,6 +157,7 @@ def main() -> int:
                if (read_json(model_dir(first.stage_dir("prepare"), cat, m["work_id"]) / "record.json") or {})
                .get("status") == "ok")
     results = {"models": total, "prepared_ok": n_ok, "views": args.views, "variants": args.variants,
+               "prepare_settings": json.loads(args.prepare_settings),
                "triangles": {"min": sizes[0], "median": sizes[len(sizes) // 2], "max": sizes[-1]},
                "prepare_core_s_per_model": prepare_s / total, "backends": {}}
     print(f"prepare: {prepare_s:.1f} core-s, {prepare_s / total:.3f} per model ({n_ok}/{total} ok)", flush=True)
