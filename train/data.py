@@ -33,6 +33,9 @@ from train.augmentation import Jitter, jitter_image
 @dataclasses.dataclass(frozen=True)
 class DataSettings:
     max_views: int = 4  # training draws 1..max_views views per sample
+    # training also returns "pair_images" (1, S, S): another drawing of the same model (another
+    # view or pencil variant than the first one drawn), for the contrastive term
+    pair: bool = False
     eval_views: int = 1  # evaluation uses views 0..eval_views-1, variant 0
     n_points: int = 7000
     image_size: int = 128
@@ -93,6 +96,9 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
         names = [table[v][int(rng.integers(len(table[v])))] for v in chosen]
         flip = bool(flip_ok and settings.jitter.flip and rng.random() < 0.5)
         idx = rng.choice(len(points), size=settings.n_points, replace=len(points) < settings.n_points)
+        if settings.pair:
+            others = [m for v in views for m in table[v] if m != names[0]] or [names[0]]
+            pair_name = others[int(rng.integers(len(others)))]
     else:
         names = [table[v][0] for v in views[: settings.eval_views]]
         flip = False
@@ -106,10 +112,15 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
             img = jitter_image(img, rng, settings.jitter, flip)
         images[i] = to_network(img)
         mask[i] = True
+    extra = {}
+    if train and settings.pair:  # mirrored like the sample: it shows the same (mirrored) shape
+        pair = jitter_image(read_png(raw[pair_name], settings.image_size), rng, settings.jitter, flip)
+        extra["pair_images"] = to_network(pair)
     pts, part_ids = points[np.sort(idx)], part_ids[np.sort(idx)]
     if flip:  # a mirrored drawing shows the mirrored shape: mirror the target across x = 0
         pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)  # part families are side-free
-    return {"images": images, "view_mask": mask, "points": pts, "point_parts": part_ids, "key": key, "meta": meta}
+    return {"images": images, "view_mask": mask, "points": pts, "point_parts": part_ids, "key": key, "meta": meta,
+            **extra}
 
 
 def _point_parts(raw: dict, n: int) -> np.ndarray:
@@ -130,6 +141,8 @@ def collate(samples: list[dict]) -> dict[str, Any]:
         "point_parts": torch.from_numpy(np.stack([s["point_parts"] for s in samples])),
         "key": [s["key"] for s in samples],
         "meta": [s["meta"] for s in samples],
+        **({"pair_images": torch.from_numpy(np.stack([s["pair_images"] for s in samples]))}
+           if "pair_images" in samples[0] else {}),
     }
 
 

@@ -28,13 +28,14 @@ from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import from_dict
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
+from train.losses.contrast import info_nce
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches
 from train.objective import Objective
 from train.templates import Template, load_template
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("val_chamfer", "seconds")
+CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "seconds")
 
 
 def _arg(default=dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
@@ -68,6 +69,8 @@ class FitSettings:
     match_normals: float = _arg(0.0, "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
                                 "(0: nearest point; the command line defaults to the template file's: 0.1 for "
                                 "the thin-walled bathtub and mug, docs/train.md)")
+    contrast: float = _arg(0.0, "weight of the contrastive term on the encoder's codes (two drawings of one model "
+                           "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:
@@ -173,13 +176,21 @@ def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> t
 
 def train_step(
     net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
-    weights: LossWeights, device: torch.device,
+    weights: LossWeights, device: torch.device, contrast: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
     """One optimisation step on a loader batch at samples ``st``: forward, the loss, backward, update.
-    Returns the batch loss and the per-item terms (``bench/bench_step_profile.py`` times this)."""
-    params = net(batch["images"].to(device), batch["view_mask"].to(device))
+    Returns the batch loss and the per-item terms (``bench/bench_step_profile.py`` times this);
+    with ``contrast`` > 0 the batch must hold ``pair_images`` and the terms include "contrast"."""
+    if contrast > 0:
+        params, codes, pair_codes = net(batch["images"].to(device), batch["view_mask"].to(device),
+                                        batch["pair_images"].to(device))
+    else:
+        params = net(batch["images"].to(device), batch["view_mask"].to(device))
     terms = objective.batch_terms(params, batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
+    if contrast > 0:
+        terms["contrast"] = info_nce(codes, pair_codes)
+        loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
@@ -213,7 +224,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         start = int(ckpt["step"])
     net: torch.nn.Module = DistributedDataParallel(model) if info.enabled else model
     objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
-    data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size)
+    data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size,
+                        pair=settings.contrast > 0)
     if template.symmetry is not None:
         data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))
     # A resumed run draws a fresh, still seeded data order keyed by the step it resumes from.
@@ -239,7 +251,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     for step in range(start, settings.steps):
         batch = next(stream)
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
-        loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device)
+        loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
+                                 settings.contrast)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):

@@ -53,5 +53,13 @@ class SketchToPatches(nn.Module):
             z = layer(z)
         return self.out(z)
 
-    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
-        return self.decode_latent(self.latent(images, view_mask))
+    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None,
+                pair_images: torch.Tensor | None = None):
+        """Parameters (B, D); with ``pair_images`` (B, 1, H, W) (another drawing of each model,
+        for the contrastive term) also the codes of ``images`` and of the pairs: (params, codes,
+        pair_codes). One forward, so DistributedDataParallel sees every parameter used."""
+        codes = self.encode(images, view_mask)
+        params = self.decode_latent(self.hidden[0](codes))
+        if pair_images is None:
+            return params
+        return params, codes, self.encode(pair_images)
