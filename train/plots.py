@@ -20,7 +20,8 @@ def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
         rows = list(csv.DictReader(f))
     if not rows:
         return
-    keys = [k for k in rows[0] if k not in ("step", "seconds", "val_chamfer")]
+    # terms a run does not use (the contrastive term when off) are empty columns
+    keys = [k for k in rows[0] if k not in ("step", "seconds", "val_chamfer") and any(r[k] for r in rows)]
     steps = [int(r["step"]) for r in rows]
     val = [(int(r["step"]), float(r["val_chamfer"])) for r in rows if r.get("val_chamfer")]
     cols = min(4, len(keys))
@@ -29,8 +30,9 @@ def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
     for ax in axes.flat[len(keys):]:
         ax.axis("off")
     for ax, k in zip(axes.flat, keys):
-        vals = [float(r[k]) for r in rows]
-        ax.plot(steps, vals, lw=1, label="train")
+        points = [(step, float(r[k])) for step, r in zip(steps, rows) if r[k]]
+        vals = [v for _, v in points]
+        ax.plot(*zip(*points), lw=1, label="train")
         if k == "chamfer" and val:
             ax.plot(*zip(*val), lw=1.2, marker=".", label="val")
             ax.legend(fontsize=7)
