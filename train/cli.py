@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from typing import TYPE_CHECKING
@@ -20,9 +21,9 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     from train.fit import FitSettings
 
     add_arguments(p, FitSettings, skip=TEMPLATE_DEFAULTS)  # one flag per setting, help from the field
-    p.add_argument("--match-normals", type=float, default=None,
-                   help="normal-aware matching in training: pair points by (xyz, λ·normal), λ = this; 0: nearest "
-                   "point (default: the template file's, 0.1 for the thin-walled bathtub and mug; docs/train.md)")
+    # added by hand so its default can come from the template file; the help is the field's
+    field = {f.name: f for f in dataclasses.fields(FitSettings)}["match_normals"]
+    p.add_argument("--match-normals", type=float, default=None, help=field.metadata["help"])
     add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
 
