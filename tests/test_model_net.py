@@ -36,3 +36,22 @@ def test_encoder_width_scales_every_stage_and_the_code():
     assert torch.equal(m(torch.rand(3, 1, 1, 32, 32)), torch.linspace(-1, 1, 30).expand(3, 30))  # still the template
     with pytest.raises(ValueError, match="encoder width"):
         ResNet18(1, width=0)
+
+
+def test_padding_views_skip_the_encoder_and_its_batch_statistics():
+    torch.manual_seed(0)
+    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=8).train()
+    with torch.no_grad():
+        m.out.weight.normal_()
+    x = torch.rand(4, 3, 1, 32, 32)
+    mask = torch.tensor([[True, False, False], [True, True, False], [True, True, True], [True, False, True]])
+    calls = []
+    m.encoder.register_forward_hook(lambda mod, inp, out: calls.append(inp[0].shape[0]))
+    out = m(x, mask)
+    assert calls == [int(mask.sum())]  # 8 present views encoded, not 12
+    # in training mode what a padding view holds changes nothing, batch-norm statistics included
+    y = x.clone()
+    y[~mask] = 1.0
+    assert torch.allclose(m(y, mask), out, atol=1e-6)
+    out.sum().backward()  # gradients reach the encoder through the present views
+    assert m.encoder.stem[0].weight.grad.abs().sum() > 0

@@ -38,10 +38,15 @@ class SketchToPatches(nn.Module):
         if images.dim() == 4:  # (B, 1, H, W): one view
             images = images.unsqueeze(1)
         b, v = images.shape[:2]
-        codes = self.encoder(images.flatten(0, 1)).view(b, v, -1)
-        if view_mask is not None:
-            codes = codes.masked_fill(~view_mask.bool().unsqueeze(-1), float("-inf"))
-        return codes.max(dim=1).values
+        flat = images.flatten(0, 1)
+        if view_mask is None or bool(view_mask.all()):
+            return self.encoder(flat).view(b, v, -1).max(dim=1).values
+        # Only the views present go through the encoder: padding views would cost a pass each and,
+        # in training, pull the batch-norm statistics towards blank paper.
+        present = view_mask.bool().flatten()
+        found = self.encoder(flat[present])
+        codes = found.new_full((b * v, found.shape[1]), float("-inf")).index_put((present.nonzero().squeeze(1),), found)
+        return codes.view(b, v, -1).max(dim=1).values
 
     def latent(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
         """The first hidden layer's activation (B, 1024): the space `interpolate` blends in."""
