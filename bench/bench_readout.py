@@ -26,28 +26,19 @@ import time
 import numpy as np
 import torch
 
+from bench_fit_ceiling import fit_to_targets  # this folder is on the path when run as a script
 from train.data import DataSettings, make_loader
 from train.fit import load_run, save_checkpoint, validation_chamfer
 from train.losses.total import weighted_sum
-from train.losses.weights import template_weights
 from train.objective import Objective
 
 
 def per_shape_fits(objective: Objective, batches: list[dict], steps: int) -> dict[str, torch.Tensor]:
-    """The template fitted to each training target (Adam on its parameters, no collision term)."""
-    tpl = objective.template
-    weights = template_weights(tpl.regularizers, {"collision": 0.0})
+    """The template fitted to each training target (``bench_fit_ceiling.fit_to_targets``), by key."""
     fits = {}
     for batch in batches:
-        params = tpl.initial_params()[None].expand(len(batch["key"]), -1).clone().requires_grad_(True)
-        opt = torch.optim.Adam([params], lr=0.01)
-        gen = torch.Generator().manual_seed(0)
-        for _ in range(steps):
-            loss = weighted_sum(objective.batch_terms(params, batch, objective.sample_st(gen), weights), weights).mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-        fits.update({k: params[i].detach() for i, k in enumerate(batch["key"])})
+        params = fit_to_targets(objective, batch, steps)
+        fits.update({k: params[i] for i, k in enumerate(batch["key"])})
     return fits
 
 
