@@ -156,8 +156,9 @@ def _deposit(dark, tooth, stamp, points, starts, half_width, darkness, grain, ed
         # Graphite catches the paper's tooth first: harder (darker) strokes fill more of it.
         threshold = 0.75 - 0.5 * a
         i0, i1 = starts[k], starts[k + 1]
-        for i in range(i0, max(i1 - 1, i0 + 1) if i1 > i0 else i0):
-            j = min(i + 1, i1 - 1)  # a one-point stroke is one segment of length 0: a disk
+        n_segments = 0 if i1 == i0 else max(i1 - i0 - 1, 1)  # a one-point stroke: one of length 0, a disk
+        for i in range(i0, i0 + n_segments):
+            j = min(i + 1, i1 - 1)
             x0, y0, r0 = points[i, 0], points[i, 1], half_width[i] + edge
             x1, y1, r1 = points[j, 0], points[j, 1], half_width[j] + edge
             dx, dy = x1 - x0, y1 - y0
