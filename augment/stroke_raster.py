@@ -4,8 +4,8 @@ Three steps, all strokes of a sketch per call (the per-stroke numpy and ``cv2`` 
 replace cost ~30 calls per stroke and were most of the augment stage's CPU time):
 
 - ``densify``: consecutive duplicates dropped, one vertex per ``spacing`` of arc length.
-- ``half_widths``: the pressure curve — smooth ramps at both ends times (1 + slow noise whose
-  random knots and phase the caller draws, so every random number comes from its generator).
+- ``half_widths``: the pressure curve — smooth ramps at both ends times (1 + slow noise, the
+  compiled form of ``augment.strokes.smooth_noise``, its knots drawn by ``noise_knots``).
 - ``deposit``: a stroke is the union of tapered capsules, one per segment: a pixel is covered
   when its centre lies within the segment's half-width (interpolated along it) of the segment,
   which gives round caps and round joins. Each stroke covers a pixel at most once (a stamp
@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+
+from augment.strokes import noise_knots
 
 # Coverage reaches this far (canvas px) past the nominal half-width: pixels whose centre is just
 # outside the outline are partly covered. Chosen so a sketch holds the same ink as the earlier
@@ -86,7 +88,7 @@ def _densify(points, starts, spacing):
             out[o + j, 1] = points[a, 1] + f * (points[b, 1] - points[a, 1])
             arc[o + j] = t
         out[o + n - 1] = points[idx[-1]]  # ends kept exactly
-    return out, out_starts, arc, lengths
+    return out, out_starts, arc
 
 
 def densify(strokes: list[np.ndarray], spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,7 +98,7 @@ def densify(strokes: list[np.ndarray], spacing: float) -> tuple[np.ndarray, np.n
     counts = np.array([len(s) for s in strokes], np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     flat = np.concatenate([np.asarray(s, np.float64).reshape(-1, 2) for s in strokes]) if len(strokes) else np.zeros((0, 2))
-    points, out_starts, arc, _ = _densify(np.ascontiguousarray(flat), starts, max(float(spacing), 1e-6))
+    points, out_starts, arc = _densify(np.ascontiguousarray(flat), starts, max(float(spacing), 1e-6))
     return points, out_starts, arc
 
 
@@ -137,10 +139,9 @@ def half_widths(arc: np.ndarray, starts: np.ndarray, rng: np.random.Generator, w
         darkness[k] = rng.uniform(*tones)
         if starts[k + 1] == starts[k]:
             continue
-        n = int(np.ceil(arc[starts[k + 1] - 1] / wavelength)) + 2
-        knots.append(rng.uniform(-1.0, 1.0, n))
-        knot_counts[k] = n
-        phases[k] = rng.random()
+        stroke_knots, phases[k] = noise_knots(rng, arc[starts[k + 1] - 1], wavelength)
+        knots.append(stroke_knots)
+        knot_counts[k] = len(stroke_knots)
     knot_starts = np.concatenate([[0], np.cumsum(knot_counts)]).astype(np.int64)
     flat = np.concatenate(knots) if knots else np.zeros(0)
     widths = _half_widths(arc, starts, flat, knot_starts, phases, float(wavelength), float(taper_length),

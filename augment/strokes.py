@@ -130,11 +130,18 @@ def jitter(strokes: Strokes, rng: np.random.Generator, rotation_deg: float, scal
     return out
 
 
+def noise_knots(rng: np.random.Generator, length: float, wavelength: float) -> tuple[np.ndarray, float]:
+    """The random draws of ``smooth_noise`` over ``length`` of arc: knots in [-1, 1], one per
+    ``wavelength`` + 2, then the phase (the compiled pencil draws its width noise with this too)."""
+    knots = rng.uniform(-1.0, 1.0, int(np.ceil(length / wavelength)) + 2)
+    return knots, rng.random()
+
+
 def smooth_noise(rng: np.random.Generator, s: np.ndarray, wavelength: float) -> np.ndarray:
     """Smooth noise in [-1, 1] along arc length s: cosine-interpolated random knots."""
-    n = int(np.ceil(s[-1] / wavelength)) + 2 if len(s) else 2
-    knots = rng.uniform(-1.0, 1.0, n)
-    x = s / wavelength + rng.random()  # random phase
+    knots, phase = noise_knots(rng, s[-1] if len(s) else 0.0, wavelength)
+    n = len(knots)
+    x = s / wavelength + phase
     i = np.floor(x).astype(int)
     f = x - i
     w = (1 - np.cos(np.pi * f)) / 2

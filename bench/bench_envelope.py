@@ -15,7 +15,6 @@ envelope, so this distance is how much the target shapes are inflated.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -27,6 +26,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_pipeline import write_corpus  # noqa: E402  (this folder is on the path when run as a script)
+from pipeline.core.atomic import write_json  # noqa: E402
 from pipeline.prepare.watertight import clean_solid, decimate, make_watertight  # noqa: E402
 from pipeline.sources.mesh_io import load_mesh  # noqa: E402
 
@@ -77,8 +77,7 @@ def main() -> int:
               f"envelope to source mean {mean['distance_mean'] * 1000:.1f}, p95 {mean['distance_p95'] * 1000:.1f} "
               f"(x1e-3 radius); {mean['faces']:.0f} faces; all watertight: {mean['all_watertight']}", flush=True)
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results, indent=1) + "\n")
+        write_json(args.out, results)
     return 0
 
 

@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
-from pipeline.core.atomic import read_json  # noqa: E402
+from pipeline.core.atomic import read_json, write_json  # noqa: E402
 from pipeline.build.listing import current_listing  # noqa: E402
 from pipeline.build.settings import BuildSettings  # noqa: E402
 from pipeline.core.records import model_dir  # noqa: E402
@@ -185,8 +185,7 @@ def main() -> int:
               f" {em['per_view_with_setup'] * 1000:.1f} ms ({results['speedup_per_view_with_setup']:.1f}x)")
     results["load_average_end"] = os.getloadavg()[0]
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results, indent=1) + "\n")
+        write_json(args.out, results)
     return 0
 
 

@@ -59,7 +59,8 @@ class SketchToPatches(nn.Module):
         return self.out(z)
 
     def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None,
-                pair_images: torch.Tensor | None = None):
+                pair_images: torch.Tensor | None = None
+                ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Parameters (B, D); with ``pair_images`` (B, 1, H, W) (another drawing of each model,
         for the contrastive term) also the codes of ``images`` and of the pairs: (params, codes,
         pair_codes). One forward, so DistributedDataParallel sees every parameter used."""
