@@ -72,7 +72,7 @@ def main() -> None:
         model = None
     elif a.init:
         torch.manual_seed(s.seed)
-        model = SketchToPatches(tpl.initial_params(), encoder_width=s.encoder_width, encoder_pool=s.encoder_pool).eval()
+        model = SketchToPatches(tpl.initial_params(), encoder_width=s.encoder_width).eval()
     else:
         model = run.model
     parts = sorted(tpl.optional_parts)

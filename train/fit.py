@@ -62,8 +62,6 @@ class FitSettings:
     image_size: int = DataSettings.image_size
     encoder_width: int = _arg(64, "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
                               "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)")
-    encoder_pool: str = _arg("average", "how the encoder pools its last feature map: average (the paper's "
-                             "global pool) or grid (4 × 4 cells, keeps where each feature is; BENCHMARKS.md)")
     checkpoint_every: int = 500
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
@@ -132,8 +130,7 @@ def load_run(path: str | Path) -> TrainedRun:
     ckpt = load_checkpoint(path)
     settings = from_dict(FitSettings, ckpt["settings"])  # older checkpoints: new fields keep defaults
     template = template_from_checkpoint(ckpt)
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width,
-                          encoder_pool=settings.encoder_pool)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width)
     model.load_state_dict(ckpt["model"])
     return TrainedRun(model.eval(), template, settings, int(ckpt["step"]))
 
@@ -216,8 +213,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     # a resumed run keeps the template it started with, even if the named one was rebuilt since
     template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width,
-                          encoder_pool=settings.encoder_pool).to(info.device)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     optimizer = make_optimizer(model, settings.lr, info.device)
     if ckpt is not None:
         saved = from_dict(FitSettings, ckpt["settings"])

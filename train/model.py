@@ -17,12 +17,11 @@ HIDDEN = (1024, 512, 256)
 class SketchToPatches(nn.Module):
     """images (B, V, 1, H, W) [+ view mask (B, V)] -> template parameters (B, D)."""
 
-    def __init__(self, initial_params: torch.Tensor, hidden: tuple[int, ...] = HIDDEN, encoder_width: int = 64,
-                 encoder_pool: str = "average"):
+    def __init__(self, initial_params: torch.Tensor, hidden: tuple[int, ...] = HIDDEN, encoder_width: int = 64):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        self.encoder = ResNet18(1, encoder_width, encoder_pool)
+        self.encoder = ResNet18(1, encoder_width)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
@@ -35,7 +34,7 @@ class SketchToPatches(nn.Module):
             self.out.bias.copy_(initial_params)
 
     def encode(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Per-view ResNet codes max-pooled over the views present -> (B, encoder.out_features)."""
+        """Per-view ResNet codes max-pooled over the views present -> (B, 8 × encoder width)."""
         if images.dim() == 4:  # (B, 1, H, W): one view
             images = images.unsqueeze(1)
         b, v = images.shape[:2]

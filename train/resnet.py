@@ -1,7 +1,6 @@
 """ResNet-18 image encoder (He et al. 2016), written here because torchvision has no CPU build.
 
-Single-channel input (a sketch); the output is the globally average-pooled feature (512-d), or
-with ``pool="grid"`` the features averaged over a 4 × 4 grid of cells and concatenated (16 × 512).
+Single-channel input (a sketch); the output is the globally average-pooled feature (512-d).
 """
 
 from __future__ import annotations
@@ -29,28 +28,17 @@ class BasicBlock(nn.Module):
         return torch.relu(y + self.shortcut(x))
 
 
-POOLS = ("average", "grid")
-GRID = 4  # cells per side of the "grid" pool: 32-pixel cells at 128²
-
-
 class ResNet18(nn.Module):
     """ResNet-18: stem, four stages of two BasicBlocks (64, 128, 256, 512 channels), global pool.
 
     ``width`` scales every stage (``width`` × 1, 2, 4, 8 channels; 64 is ResNet-18 itself): the
-    cost of a convolution grows with the square of its channels, so 32 costs about a quarter.
+    cost of a convolution grows with the square of its channels, so 32 costs about a quarter."""
 
-    ``pool``: "average" (the paper's global pool) or "grid", which keeps where in the drawing each
-    feature is: a global average cannot tell a long blade from a short one drawn with the same
-    strokes, and the shapes' dimensions are what the head has to regress."""
-
-    def __init__(self, in_channels: int = 1, width: int = 64, pool: str = "average"):
+    def __init__(self, in_channels: int = 1, width: int = 64):
         super().__init__()
         if width < 1:
             raise ValueError(f"encoder width must be a positive number of channels, got {width}")
-        if pool not in POOLS:
-            raise ValueError(f"encoder pool must be one of {', '.join(POOLS)}, got {pool!r}")
-        self.pool_cells = 1 if pool == "average" else GRID
-        self.out_features = 8 * width * self.pool_cells**2
+        self.out_features = 8 * width
         self.stem = nn.Sequential(
             nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
             nn.BatchNorm2d(width),
@@ -68,5 +56,5 @@ class ResNet18(nn.Module):
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(N, C, H, W) images -> (N, out_features) codes (512 for ResNet-18)."""
-        return torch.flatten(nn.functional.adaptive_avg_pool2d(self.blocks(self.stem(x)), self.pool_cells), 1)
+        """(N, C, H, W) images -> (N, 8 × width) codes (512 for ResNet-18)."""
+        return torch.flatten(nn.functional.adaptive_avg_pool2d(self.blocks(self.stem(x)), 1), 1)
