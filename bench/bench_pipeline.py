@@ -126,7 +126,7 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_pipeline"))
     ap.add_argument("--backends", default="embree,freestyle")
     ap.add_argument("--prepare-settings", default="{}",
-                    help='prepare overrides as JSON, e.g. \'{"resolution": 2000, "max_faces": 8000}\' (bench_envelope.py)')
+                    help='prepare overrides as JSON, e.g. \'{"resolution": 2000}\' (bench_envelope.py)')
     ap.add_argument("--out", type=Path, default=None, help="also write the figures as JSON here")
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")

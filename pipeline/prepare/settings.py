@@ -7,11 +7,14 @@ import dataclasses
 
 @dataclasses.dataclass(frozen=True)
 class PrepareSettings:
-    # Manifold octree leaf count (the octree deepens in steps, so the envelope has ~20k-50k faces
-    # at 5000 for the procedural categories): ~0.6 s CPU for the envelope + ~0.6 s decimation per
-    # model on one core. Thin parts survive: the envelope inflates by about one cell, never drops.
+    # Manifold octree leaf count (the octree deepens in steps, so the envelope has ~10k-50k faces,
+    # median ~22k, at 5000 for the procedural categories): ~0.4 s CPU per model on one core. Thin
+    # parts survive: the envelope inflates by about one cell, never drops.
     resolution: int = 5000
-    max_faces: int = 20000  # decimate the dense envelope down to this many faces
+    # Decimate the envelope down to this many faces. Above the usual envelope's size, so decimation
+    # is the exception (a dense input): at 20000 it cost ~0.16 CPU s per model for a few thousand
+    # faces less (BENCHMARKS.md, stop 17); the samples lie on the mesh either way.
+    max_faces: int = 50000
     n_samples: int = 16384  # surface points (+ normals) in samples.npy
     seed: int = 0  # keys the sampling generator and the Manifold octree seed
     # Bad-input bounds: beyond these a model fails with a clear reason instead of eating the box.
