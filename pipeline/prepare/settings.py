@@ -8,7 +8,7 @@ import dataclasses
 @dataclasses.dataclass(frozen=True)
 class PrepareSettings:
     # Manifold octree leaf count (the octree deepens in steps, so the envelope has ~10k-50k faces,
-    # median ~22k, at 5000 for the procedural categories): ~0.4 s CPU per model on one core. Thin
+    # median ~25k, at 5000 for the 104-model bench corpus): ~0.4 s CPU per model on one core. Thin
     # parts survive: the envelope inflates by about one cell, never drops.
     resolution: int = 5000
     # Decimate the envelope down to this many faces. Above the usual envelope's size, so decimation
