@@ -28,8 +28,7 @@ import torch
 
 from bench_fit_ceiling import fit_to_targets  # this folder is on the path when run as a script
 from train.data import DataSettings, make_loader
-from train.fit import load_run, save_checkpoint, validation_chamfer
-from train.losses.total import weighted_sum
+from train.fit import load_run, save_checkpoint, train_step, validation_chamfer
 from train.objective import Objective
 
 
@@ -45,8 +44,8 @@ def per_shape_fits(objective: Objective, batches: list[dict], steps: int) -> dic
 @torch.no_grad()
 def hidden_features(model, batch: dict, view: int) -> torch.Tensor:
     """The last hidden layer's activation for one view of each item (B, F)."""
-    z = model.encode(batch["images"][:, view:view + 1], batch["view_mask"][:, view:view + 1])
-    for layer in model.hidden:
+    z = model.latent(batch["images"][:, view:view + 1], batch["view_mask"][:, view:view + 1])
+    for layer in model.hidden[1:]:
         z = layer(z)
     return z
 
@@ -118,12 +117,8 @@ def main() -> None:
         stream = iter(make_loader(a.dataset, a.category, "train", data, 1, s.batch_size, 1, True))
         for step in range(1, a.sgd_steps + 1):
             batch = next(stream)
-            gen = torch.Generator().manual_seed(step)
-            terms = objective.batch_terms(model(batch["images"], batch["view_mask"]), batch, objective.sample_st(gen), s.weights)
-            loss = weighted_sum(terms, s.weights).mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            train_step(model, opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
+                       s.weights, cpu)
             if step % 100 == 0:
                 v = validation_chamfer(model, val, objective, cpu)  # the model stays in eval mode
                 print(f"head-only step {step} (lr {a.lr:g}): val L_Ch {v:.4f}", flush=True)

@@ -7,7 +7,7 @@ import dataclasses
 
 @dataclasses.dataclass(frozen=True)
 class PrepareSettings:
-    # Manifold octree leaf count (the octree deepens in steps, so the envelope has ~10k-50k faces,
+    # Manifold octree leaf count (the octree deepens in steps, so the envelope has 10k-54k faces,
     # median ~25k, at 5000 for the 104-model bench corpus): ~0.4 s CPU per model on one core. Thin
     # parts survive: the envelope inflates by about one cell, never drops.
     resolution: int = 5000
