@@ -29,6 +29,7 @@ import torch
 from bench_fit_ceiling import fit_to_targets  # this folder is on the path when run as a script
 from train.data import DataSettings, make_loader
 from train.fit import load_run, save_checkpoint, train_step, validation_chamfer
+from train.model import TrainingNet
 from train.objective import Objective
 
 
@@ -117,7 +118,7 @@ def main() -> None:
         stream = iter(make_loader(a.dataset, a.category, "train", data, 1, s.batch_size, 1, True))
         for step in range(1, a.sgd_steps + 1):
             batch = next(stream)
-            train_step(model, opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
+            train_step(TrainingNet(model), opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
                        s.weights, cpu)
             if step % 100 == 0:
                 v = validation_chamfer(model, val, objective, cpu)  # the model stays in eval mode

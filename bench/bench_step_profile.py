@@ -54,14 +54,14 @@ class _Noisy(torch.nn.Module):
         super().__init__()
         self.net, self.noise, self.gen = net, noise, torch.Generator().manual_seed(seed)
 
-    def forward(self, images, view_mask):
+    def forward(self, images, view_mask, pair_images=None):  # train_step's TrainingNet call
         params = self.net(images, view_mask)
-        return params + self.noise * torch.randn(params.shape, generator=self.gen)
+        return {"params": params + self.noise * torch.randn(params.shape, generator=self.gen)}
 
 
 def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, tick) -> None:
     """``train_step``'s work with a timer ``tick(part)`` between parts (same inputs, same result)."""
-    params = net(batch["images"], batch["view_mask"])
+    params = net(batch["images"], batch["view_mask"])["params"]
     tick("encoder + head forward")
     dev = params.device
     tn = None
