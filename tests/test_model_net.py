@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from train.model import SketchToPatches
+from train.model import SketchToPatches, TrainingNet
 from train.resnet import ResNet18
 
 
@@ -55,3 +55,17 @@ def test_padding_views_skip_the_encoder_and_its_batch_statistics():
     assert torch.allclose(m(y, mask), out, atol=1e-6)
     out.sum().backward()  # gradients reach the encoder through the present views
     assert m.encoder.stem[0].weight.grad.abs().sum() > 0
+
+
+def test_training_net_returns_the_networks_parameters_and_the_pair_codes():
+    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=16).eval()
+    with torch.no_grad():
+        m.out.weight.normal_()
+    t = TrainingNet(m)
+    assert [id(p) for p in t.parameters()] == [id(p) for p in m.parameters()]  # one optimizer state fits both
+    x, pair = torch.rand(3, 2, 1, 32, 32), torch.rand(3, 1, 32, 32)
+    plain = t(x)
+    assert set(plain) == {"params"} and torch.equal(plain["params"], m(x))
+    out = t(x, None, pair)
+    assert torch.equal(out["params"], m(x))
+    assert torch.equal(out["codes"], m.encode(x)) and torch.equal(out["pair_codes"], m.encode(pair))

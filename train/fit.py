@@ -29,14 +29,13 @@ from pipeline.core.settings_io import from_dict
 from train.data import DataSettings, make_loader
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.losses.contrast import info_nce
-from train.losses.shape_code import DIMS, ShapeBasis, anchor_grid, distance_descriptor, fit_basis, shape_code_loss
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
 from train.templates import Template, load_template
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "shape_code", "val_chamfer", "seconds")
+CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "seconds")
 
 
 def _arg(default=dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
@@ -72,9 +71,6 @@ class FitSettings:
                                 "the thin-walled bathtub and mug, docs/train.md)")
     contrast: float = _arg(0.0, "weight of the contrastive term on the encoder's codes (two drawings of one model "
                            "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
-    shape_code: float = _arg(0.0, "weight of the shape-code term: a linear head on the encoder's code regresses the "
-                             "leading principal components of the target's distance field (not in the paper; 0: off; "
-                             "BENCHMARKS.md)")
     weights: LossWeights = LossWeights()
 
     def identity(self) -> dict:
@@ -87,9 +83,8 @@ class FitSettings:
 
 def save_checkpoint(
     path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
-    template: Template, val_chamfer: float | None = None, training: dict | None = None,
+    template: Template, val_chamfer: float | None = None,
 ) -> None:
-    """``training``: what only a resume needs besides the network (the shape-code head and basis)."""
     with atomic_path(path) as tmp:
         torch.save(
             {
@@ -102,7 +97,6 @@ def save_checkpoint(
                 # the template itself: a rebuilt shipped template must not change what an old run means
                 "template_json": template.to_json(),
                 "num_params": model.num_params,
-                **({"training": training} if training else {}),
             },
             tmp,
         )
@@ -180,51 +174,25 @@ def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> t
     return torch.optim.Adam(model.parameters(), lr=lr, fused=torch.device(device).type in ("cpu", "cuda"))
 
 
-@dataclasses.dataclass(frozen=True)
-class EncoderTerms:
-    """The terms on the encoder's code beside the paper's loss (weights 0: off)."""
-
-    contrast: float = 0.0
-    shape_code: float = 0.0
-    basis: ShapeBasis | None = None  # needed when shape_code > 0
-
-
 def train_step(
     net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
-    weights: LossWeights, device: torch.device, extra: EncoderTerms = EncoderTerms(),
+    weights: LossWeights, device: torch.device, contrast: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
-    terms (``bench/bench_step_profile.py`` times this); with ``extra.contrast`` > 0 the batch must
-    hold ``pair_images`` and the terms include "contrast", with ``extra.shape_code`` > 0 they
-    include "shape_code"."""
-    pair = batch["pair_images"].to(device) if extra.contrast > 0 else None
+    terms (``bench/bench_step_profile.py`` times this); with ``contrast`` > 0 the batch must hold
+    ``pair_images`` and the terms include "contrast"."""
+    pair = batch["pair_images"].to(device) if contrast > 0 else None
     out = net(batch["images"].to(device), batch["view_mask"].to(device), pair)
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
-    if extra.contrast > 0:
+    if contrast > 0:
         terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
-        loss = loss + extra.contrast * terms["contrast"].mean()
-    if extra.shape_code > 0:
-        with torch.no_grad():
-            target = extra.basis.coefficients(batch["points"].to(device))
-        terms["shape_code"] = shape_code_loss(out["shape_code"], target)
-        loss = loss + extra.shape_code * terms["shape_code"].mean()
+        loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
     return loss, terms
-
-
-@torch.no_grad()
-def training_shape_basis(settings: FitSettings, dims: int = DIMS) -> ShapeBasis:
-    """The shape-code basis of a run: principal components of the distance descriptors of the
-    training split's targets, one per model (a single deterministic pass, no augmentation)."""
-    data = DataSettings(eval_views=1, n_points=settings.n_points, image_size=settings.image_size)
-    anchors = anchor_grid()
-    rows = [distance_descriptor(b["points"], anchors)
-            for b in make_loader(settings.dataset, settings.category, "train", data, 0, 32, train=False)]
-    return fit_basis(torch.cat(rows), anchors, dims)
 
 
 def fit(settings: FitSettings, progress: bool = True) -> dict:
@@ -244,25 +212,15 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
-    basis = None
-    if settings.shape_code > 0:  # a resume keeps the basis it started with
-        saved_basis = (ckpt or {}).get("training", {}).get("shape_basis")
-        basis = ShapeBasis.from_state(saved_basis) if saved_basis else training_shape_basis(settings)
-    trainee = TrainingNet(model, basis.dims if basis else 0).to(info.device)
+    trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device)
     if ckpt is not None:
         saved = from_dict(FitSettings, ckpt["settings"])
         if saved.identity() != settings.identity():
             raise ValueError(f"{out}: existing run has different settings; use another --out")
         model.load_state_dict(ckpt["model"])
-        if trainee.shape_head is not None:
-            trainee.shape_head.load_state_dict(ckpt["training"]["shape_head"])
         optimizer.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
-    training = None
-    if basis is not None:
-        training = {"shape_basis": basis.state(), "shape_head": trainee.shape_head.state_dict()}
-    extra = EncoderTerms(settings.contrast, settings.shape_code, basis)
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
     objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
     data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size,
@@ -293,22 +251,21 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         batch = next(stream)
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
-                                 extra)
+                                 settings.contrast)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
             val = validation_chamfer(model, val_loader, objective, info.device)
             if val < best:
                 best = val
-                save_checkpoint(out / "best.pt", model, optimizer, done, settings, template, val_chamfer=val,
-                                training=training)
+                save_checkpoint(out / "best.pt", model, optimizer, done, settings, template, val_chamfer=val)
         if done % settings.log_every == 0 or done == settings.steps or val is not None:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
                 logger.log(done, last, {**row, "val_chamfer": "" if val is None else val}, time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
-            save_checkpoint(ckpt_path, model, optimizer, done, settings, template, training=training)
+            save_checkpoint(ckpt_path, model, optimizer, done, settings, template)
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.4f}")

@@ -64,28 +64,21 @@ class SketchToPatches(nn.Module):
 
 
 class TrainingNet(nn.Module):
-    """The network plus what only training uses: the contrastive term's second drawing and the
-    shape-code head (a linear map from the encoder's code to ``shape_dims`` coefficients).
+    """The network as training calls it: one ``forward`` that also returns what the contrastive
+    term needs (the codes of each drawing and of a second drawing of the same model), so
+    DistributedDataParallel sees every parameter used. Its parameters are the network's, in the
+    same order."""
 
-    One ``forward`` returns everything the step's terms need, so DistributedDataParallel sees every
-    parameter used. Without a shape head its parameters are the network's, in the same order (an
-    optimizer state saved for either fits the other).
-    """
-
-    def __init__(self, model: SketchToPatches, shape_dims: int = 0):
+    def __init__(self, model: SketchToPatches):
         super().__init__()
         self.model = model
-        self.shape_head = nn.Linear(model.encoder.out_features, shape_dims) if shape_dims else None
 
     def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None,
                 pair_images: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes"
-        (B, C), and with a shape head, "shape_code" (B, shape_dims)."""
+        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)."""
         m = self.model
         codes = m.encode(images, view_mask)
         out = {"params": m.decode_latent(m.hidden[0](codes))}
         if pair_images is not None:
             out["codes"], out["pair_codes"] = codes, m.encode(pair_images)
-        if self.shape_head is not None:
-            out["shape_code"] = self.shape_head(codes)
         return out
