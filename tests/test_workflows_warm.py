@@ -22,8 +22,9 @@ def test_warm_up_compiles_what_the_vectorizer_uses() -> None:
     # In a fresh interpreter: skan's uncached numba functions are compiled by the warm-up, so a
     # forked task child finds them ready (numba keeps one signature per compiled variant).
     code = ("from workflows.warm import warm_stage_code; import skan.csr as c; "
-            "before = len(c._build_paths.signatures); warm_stage_code(); "
-            "print(before, len(c._build_paths.signatures))")
+            "before = len(c._build_paths.signatures); warm_stage_code(); import gc; "
+            "print(before, len(c._build_paths.signatures), gc.get_freeze_count())")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    before, after = map(int, out.stdout.split())
+    before, after, frozen = map(int, out.stdout.split())
     assert before == 0 and after >= 1
+    assert frozen > 10_000  # what the imports loaded is out of the collector's way
