@@ -48,6 +48,6 @@ def warm_stage_code() -> None:
     draw_pencil([np.array([[4.0, 4.0], [20.0, 12.0]]), np.array([[8.0, 30.0]])], 32, 1.0, np.random.default_rng(0))
     # The imports leave ~225k long-lived objects that every full collection would scan again while
     # the stages allocate millions of small ones (stroke points, JSON lists); frozen, they are
-    # skipped (augment stage 0.63 -> 0.59 CPU s per model, BENCHMARKS.md). Forked task children
+    # skipped (augment + shards 0.62 -> 0.56 core-s per model, BENCHMARKS.md). Forked task children
     # inherit the frozen set, and their copy-on-write pages stay shared.
     gc.freeze()
