@@ -8,6 +8,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
+from pipeline.core.settings_io import SettingError
 from train.data import DataSettings, make_loader
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, load_checkpoint, load_run
@@ -42,6 +43,19 @@ def test_resume_continues_the_run(shards, tmp_path):
     assert (out / "loss.png").stat().st_size > 0 and any((out / "tb").iterdir())
     with pytest.raises(ValueError, match="different settings"):
         fit(settings(shards, out, 4, lr=1e-3), progress=False)
+
+
+def test_checkpoints_with_a_removed_setting_load_when_it_was_off(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 1), progress=False)
+    ck = load_checkpoint(out / "checkpoint.pt")
+    ck["settings"]["encoder_lr"] = None  # stop 15's option, at its "same as lr" value
+    torch.save(ck, out / "old.pt")
+    assert load_run(out / "old.pt").step == 1
+    ck["settings"]["encoder_lr"] = 1e-3  # it changed the run: still refused, naming the setting
+    torch.save(ck, out / "changed.pt")
+    with pytest.raises(SettingError, match="encoder_lr"):
+        load_run(out / "changed.pt")
 
 
 def test_training_is_deterministic(shards, tmp_path):

@@ -125,10 +125,22 @@ class TrainedRun:
     step: int
 
 
+# Settings removed since, with the value that meant "off": a checkpoint saved with that value
+# loads as if it never had the setting; any other value still fails, naming it.
+_REMOVED_SETTINGS = {"encoder_lr": None}  # stop 15's separate encoder learning rate
+
+
+def checkpoint_settings(ckpt: dict) -> FitSettings:
+    """The settings a checkpoint was trained with (older checkpoints: new fields keep defaults)."""
+    saved = {k: v for k, v in ckpt["settings"].items()
+             if not (k in _REMOVED_SETTINGS and v == _REMOVED_SETTINGS[k])}
+    return from_dict(FitSettings, saved)
+
+
 def load_run(path: str | Path) -> TrainedRun:
     """The run saved at ``path`` (``checkpoint.pt`` or ``best.pt``), on the CPU."""
     ckpt = load_checkpoint(path)
-    settings = from_dict(FitSettings, ckpt["settings"])  # older checkpoints: new fields keep defaults
+    settings = checkpoint_settings(ckpt)
     template = template_from_checkpoint(ckpt)
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width)
     model.load_state_dict(ckpt["model"])
@@ -215,7 +227,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device)
     if ckpt is not None:
-        saved = from_dict(FitSettings, ckpt["settings"])
+        saved = checkpoint_settings(ckpt)
         if saved.identity() != settings.identity():
             raise ValueError(f"{out}: existing run has different settings; use another --out")
         model.load_state_dict(ckpt["model"])
