@@ -116,9 +116,10 @@ def main() -> None:
         opt = torch.optim.Adam(model.out.parameters(), lr=a.lr)
         data = DataSettings(max_views=s.max_views, n_points=s.n_points, image_size=s.image_size)
         stream = iter(make_loader(a.dataset, a.category, "train", data, 1, s.batch_size, 1, True))
+        trainee = TrainingNet(model)
         for step in range(1, a.sgd_steps + 1):
             batch = next(stream)
-            train_step(TrainingNet(model), opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
+            train_step(trainee, opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
                        s.weights, cpu)
             if step % 100 == 0:
                 v = validation_chamfer(model, val, objective, cpu)  # the model stays in eval mode
