@@ -27,10 +27,14 @@ from train.data import DataSettings, make_loader  # noqa: E402
 from train.resnet import ResNet18  # noqa: E402
 
 
-def distance_codes(points: torch.Tensor, grid: int = 8) -> torch.Tensor:
-    """``(B, grid³)``: distance from each anchor (cell centres over [-1, 1]³) to the nearest point."""
+def anchor_grid(grid: int = 8) -> torch.Tensor:
+    """``(grid³, 3)`` cell centres over [-1, 1]³."""
     c = (torch.arange(grid, dtype=torch.float32) + 0.5) / grid * 2 - 1
-    anchors = torch.stack(torch.meshgrid(c, c, c, indexing="ij"), dim=-1).reshape(-1, 3)
+    return torch.stack(torch.meshgrid(c, c, c, indexing="ij"), dim=-1).reshape(-1, 3)
+
+
+def distance_codes(points: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
+    """``(B, M)``: distance from each anchor to the nearest of each shape's points ``(B, N, 3+)``."""
     xyz = points[..., :3]
     return torch.cdist(anchors.expand(len(xyz), -1, -1), xyz).amin(dim=2)
 
@@ -50,14 +54,15 @@ def main() -> int:
     once = DataSettings(eval_views=1, n_points=a.points)
     train_once = list(make_loader(a.dataset, a.category, "train", once, 0, 16, train=False))
     val = list(make_loader(a.dataset, a.category, "val", once, 0, 16, train=False))
-    d = torch.cat([distance_codes(b["points"]) for b in train_once]).double()
+    anchors = anchor_grid()
+    d = torch.cat([distance_codes(b["points"], anchors) for b in train_once]).double()
     mean = d.mean(0)
     _, s, vh = torch.linalg.svd(d - mean, full_matrices=False)
     k = min(a.dims, len(d) - 1)
     comps, scale = vh[:k].float(), (s[:k] / (len(d) - 1) ** 0.5).float()
 
     def code(points: torch.Tensor) -> torch.Tensor:
-        return (distance_codes(points) - mean.float()) @ comps.T / scale
+        return (distance_codes(points, anchors) - mean.float()) @ comps.T / scale
 
     encoder = ResNet18(1, a.width)
     head = torch.nn.Linear(encoder.out_features, k)
@@ -66,15 +71,22 @@ def main() -> int:
     def predict(batch: dict) -> torch.Tensor:
         return head(encoder(batch["images"][:, 0]))
 
+    # the fixed splits' codes once (they are targets, not data that changes)
+    fixed = {name: [(b["images"][:, 0], code(b["points"])) for b in batches]
+             for name, batches in (("train", train_once), ("val", val))}
+
     @torch.no_grad()
-    def error(batches: list[dict], zero: bool = False) -> float:
+    def error(name: str) -> float:
         encoder.eval()
-        total = sum(float(((0 if zero else predict(b)) - code(b["points"])).pow(2).mean(1).sum()) for b in batches)
+        total = sum(float((head(encoder(im)) - c).pow(2).mean(1).sum()) for im, c in fixed[name])
         encoder.train()
-        return total / sum(len(b["points"]) for b in batches)
+        return total / sum(len(c) for _, c in fixed[name])
+
+    def mean_error(name: str) -> float:  # predicting the mean code (0)
+        return float(torch.cat([c for _, c in fixed[name]]).pow(2).mean())
 
     print(f"{a.category}: {len(d)} training shapes, {k} components; predicting the mean: "
-          f"train {error(train_once, True):.3f}, val {error(val, True):.3f}", flush=True)
+          f"train {mean_error('train'):.3f}, val {mean_error('val'):.3f}", flush=True)
     stream = iter(make_loader(a.dataset, a.category, "train", DataSettings(max_views=1, n_points=a.points), 0, 8, 1, True))
     t0, recent = time.process_time(), []
     for step in range(1, a.steps + 1):
@@ -85,8 +97,8 @@ def main() -> int:
         opt.step()
         recent.append(float(loss.detach()))
         if step % 200 == 0:
-            print(f"step {step}: batches {sum(recent[-200:]) / 200:.3f}, train {error(train_once):.3f}, "
-                  f"val {error(val):.3f} ({time.process_time() - t0:.0f} CPU s)", flush=True)
+            print(f"step {step}: batches {sum(recent[-200:]) / 200:.3f}, train {error('train'):.3f}, "
+                  f"val {error('val'):.3f} ({time.process_time() - t0:.0f} CPU s)", flush=True)
     return 0
 
 
