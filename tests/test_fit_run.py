@@ -11,7 +11,7 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 from pipeline.core.settings_io import SettingError
 from train.data import DataSettings, make_loader
 from train.evaluate import evaluate, format_table, mean_output, metric_names
-from train.fit import FitSettings, fit, load_checkpoint, load_run
+from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
 from train.templates import load_template
 from train.losses.weights import LossWeights
 
@@ -56,6 +56,19 @@ def test_checkpoints_with_a_removed_setting_load_when_it_was_off(shards, tmp_pat
     torch.save(ck, out / "changed.pt")
     with pytest.raises(SettingError, match="encoder_lr"):
         load_run(out / "changed.pt")
+
+
+def test_cosine_schedule_warms_up_decays_and_is_logged(shards, tmp_path):
+    s = settings(shards, tmp_path / "lr", 6, lr=1e-3, lr_schedule="cosine", warmup_steps=2)
+    lrs = [learning_rate(s, step) for step in range(6)]
+    assert lrs[:3] == [5e-4, 1e-3, 1e-3]  # linear warm-up to the peak, where the decay starts
+    assert all(a > b for a, b in zip(lrs[2:], lrs[3:])) and lrs[-1] < 2e-4  # then down towards 0
+    assert learning_rate(settings(shards, tmp_path, 6, lr=1e-3), 5) == 1e-3  # constant: the default
+    fit(s, progress=False)
+    logged = [float(r["lr"]) for r in csv.DictReader(open(tmp_path / "lr" / "log.csv"))]
+    assert logged == pytest.approx(lrs)  # the optimizer ran at the schedule's rate each step
+    with pytest.raises(ValueError, match="lr_schedule"):
+        settings(shards, tmp_path, 6, lr_schedule="linear")
 
 
 def test_training_is_deterministic(shards, tmp_path):

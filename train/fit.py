@@ -16,6 +16,7 @@ import csv
 import hashlib
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,8 @@ from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
 from train.templates import Template, load_template
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "seconds")
+CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "seconds")
+LR_SCHEDULES = ("constant", "cosine")
 
 
 def _arg(default=dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
@@ -54,7 +56,10 @@ class FitSettings:
     out: str = _arg(help="run folder (re-using it resumes the run)")
     steps: int = 1000
     batch_size: int = 8
-    lr: float = 1e-4
+    lr: float = _arg(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
+    lr_schedule: str = _arg("constant", "constant, or cosine: linear warm-up over --warmup-steps, then a cosine "
+                            "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)")
+    warmup_steps: int = 0
     seed: int = 0
     workers: int = 2  # data loader worker processes per rank
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
@@ -72,6 +77,10 @@ class FitSettings:
     contrast: float = _arg(0.0, "weight of the contrastive term on the encoder's codes (two drawings of one model "
                            "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
     weights: LossWeights = LossWeights()
+
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule {self.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
@@ -180,6 +189,18 @@ def _read_log(path: Path, upto: int) -> list[dict]:
         return [row for row in csv.DictReader(f) if int(row["step"]) <= upto]
 
 
+def learning_rate(settings: FitSettings, step: int) -> float:
+    """The learning rate of step ``step`` (0-based): a pure function of the step, so a resumed run
+    continues the schedule where it stopped."""
+    if settings.lr_schedule == "constant":
+        return settings.lr
+    if step < settings.warmup_steps:
+        return settings.lr * (step + 1) / settings.warmup_steps
+    span = max(settings.steps - settings.warmup_steps, 1)
+    done = min(step - settings.warmup_steps, span) / span
+    return settings.lr * 0.5 * (1.0 + math.cos(math.pi * done))
+
+
 def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> torch.optim.Optimizer:
     """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
     cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md)."""
@@ -262,6 +283,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     for step in range(start, settings.steps):
         batch = next(stream)
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
+        lr = learning_rate(settings, step)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
                                  settings.contrast)
         done = step + 1
@@ -275,7 +299,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
-                logger.log(done, last, {**row, "val_chamfer": "" if val is None else val}, time.perf_counter() - t0)
+                logger.log(done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr},
+                           time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
             save_checkpoint(ckpt_path, model, optimizer, done, settings, template)
         if bar:
@@ -326,7 +351,8 @@ class _Logger:
         self.tb.add_scalar("loss/total", loss, step)
         for k, v in terms.items():
             if v != "":  # validation runs only every val_every steps
-                self.tb.add_scalar(f"val/{k}" if k.startswith("val_") else f"loss/{k}", v, step)
+                group = "val" if k.startswith("val_") else "opt" if k == "lr" else "loss"
+                self.tb.add_scalar(f"{group}/{k}", v, step)
 
     def close(self) -> None:
         from train.plots import plot_losses
