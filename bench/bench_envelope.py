@@ -43,7 +43,7 @@ def measure(path: Path, configs: list[tuple[int, int]]) -> list[dict]:
         t1 = time.process_time()
         dv, df = decimate(wv, wf, max_faces)
         t2 = time.process_time()
-        mesh = clean_solid(dv, df, 0.01)
+        mesh, _ = clean_solid(dv, df, 0.01)
         t3 = time.process_time()
         d = tree.query(trimesh.sample.sample_surface(mesh, 20000, seed=1)[0])[0] / radius
         rows.append({"watertight_s": t1 - t0, "decimate_s": t2 - t1, "clean_s": t3 - t2,

@@ -199,3 +199,44 @@ def test_other_formats_load(tmp_path, ext):
     src = _write(tmp_path, f"a.{ext}", trimesh.creation.annulus(0.3, 0.6, 0.4))
     prepare_model(_ref(src), tmp_path / "out", FAST)
     assert_prepared(tmp_path / "out", FAST)
+
+
+def _facts_by_trimesh(mesh: trimesh.Trimesh) -> tuple:
+    parts = len(trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces))))
+    return mesh.is_watertight, mesh.is_winding_consistent, parts, mesh.body_count, mesh.volume
+
+
+def _surfaces_to_check() -> dict[str, trimesh.Trimesh]:
+    box = trimesh.creation.box()
+    ball = trimesh.creation.icosphere(2)
+    far = trimesh.Trimesh(box.vertices + 3.0, box.faces)
+    corner = trimesh.Trimesh(box.vertices + 1.0, box.faces)  # touches `box` at one vertex only
+    fin = np.array([[0.5, 0.5, 0.5], [0.5, -0.5, 0.5], [1.5, 0.0, 0.5]])
+    i = np.flatnonzero((np.abs(box.vertices - fin[0]).sum(1) < 1e-9) | (np.abs(box.vertices - fin[1]).sum(1) < 1e-9))
+    flipped = box.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    return {
+        "box": box,
+        "sphere": ball,
+        "inside out": trimesh.Trimesh(ball.vertices, ball.faces[:, ::-1], process=False),
+        "open": trimesh.Trimesh(box.vertices, box.faces[1:], process=False),
+        "one face flipped": trimesh.Trimesh(box.vertices, flipped, process=False),
+        "two apart": trimesh.util.concatenate([box, far]),
+        "two at a corner": trimesh.Trimesh(*trimesh.util.append_faces([box.vertices, corner.vertices],
+                                                                     [box.faces, corner.faces]), process=True),
+        # a third face on an existing edge: non-manifold
+        "fin": trimesh.Trimesh(np.vstack([box.vertices, fin[2:]]),
+                               np.vstack([box.faces, [[i[0], i[1], len(box.vertices)]]]), process=False),
+    }
+
+
+@pytest.mark.parametrize("name", list(_surfaces_to_check()))
+def test_surface_facts_answer_as_trimesh_does(name):
+    from pipeline.prepare.mesh_checks import surface_facts
+
+    mesh = _surfaces_to_check()[name]
+    facts = surface_facts(mesh.vertices, mesh.faces)
+    watertight, winding, parts, bodies, volume = _facts_by_trimesh(mesh)
+    assert (facts.watertight, facts.winding_consistent, facts.face_parts, facts.bodies) == (watertight, winding, parts, bodies)
+    if watertight and winding:  # (otherwise the "volume" depends on the formula; the checks never ask it)
+        assert facts.volume == pytest.approx(volume, rel=1e-9, abs=1e-12)

@@ -68,8 +68,8 @@ def repair_mesh(
         dv, df = decimate(wv, wf, settings.max_faces)
         timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
         t = time.perf_counter()
-        mesh = clean_solid(dv, df, settings.min_component_fraction)
-        problems = closed_surface_problems(mesh, settings.max_bodies)
+        mesh, facts = clean_solid(dv, df, settings.min_component_fraction)
+        problems = closed_surface_problems(facts, settings.max_bodies)
         if len(mesh.faces) > settings.max_faces:
             problems.append(f"{len(mesh.faces)} faces after decimation > max_faces {settings.max_faces}")
         timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - t

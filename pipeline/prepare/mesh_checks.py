@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.errors import ModelError
 
@@ -43,18 +46,63 @@ def check_input(
         raise ModelError(path, f"degenerate mesh: total surface area {area:.3g} (bbox diagonal {diag:.3g})")
 
 
-def closed_surface_problems(mesh: trimesh.Trimesh, max_bodies: int = 1) -> list[str]:
-    """Reasons a mesh is not closed, consistently oriented, outward-facing solids, at most ``max_bodies`` ([] if it is)."""
-    problems = []
-    if len(mesh.faces) == 0:
+@dataclasses.dataclass(frozen=True)
+class SurfaceFacts:
+    """What the repair checks ask of a triangle mesh, with trimesh's meanings: ``watertight``
+    (every edge in exactly two faces), ``winding_consistent`` (every edge in exactly two faces runs
+    opposite ways in them), ``face_parts`` (groups of faces joined across such edges, as
+    ``mesh.split`` counts), ``bodies`` (groups of joined vertices, ``mesh.body_count``) and
+    ``volume`` (signed; positive for an outward-facing closed surface), and the face count."""
+
+    faces: int
+    watertight: bool
+    winding_consistent: bool
+    face_parts: int
+    bodies: int
+    volume: float
+
+
+def surface_facts(vertices: np.ndarray, faces: np.ndarray) -> SurfaceFacts:
+    """:class:`SurfaceFacts` from one sort of the edges. trimesh answers the same questions from
+    separately cached properties that the repair's checks kept recomputing (~0.1 CPU s per
+    envelope, BENCHMARKS.md); the answers are equal (tests/test_prepare_core.py)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    n_f, n_v = len(faces), len(vertices)
+    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)  # edge k belongs to face k // 3
+    key = np.minimum(edges[:, 0], edges[:, 1]) * n_v + np.maximum(edges[:, 0], edges[:, 1])
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    new_run = np.r_[True, key[1:] != key[:-1]]
+    starts = np.flatnonzero(new_run)
+    counts = np.diff(np.r_[starts, len(key)])
+    twice = starts[counts == 2]
+    first, second = order[twice], order[twice + 1]  # the two uses of each edge in exactly two faces
+    watertight = bool(len(twice) * 2 == len(edges))
+    winding = bool(np.all(edges[first, 1] == edges[second, 0]))
+    adjacency = coo_matrix((np.ones(len(first), np.int8), (first // 3, second // 3)), shape=(n_f, n_f))
+    face_parts = connected_components(adjacency, directed=False)[0] if n_f else 0
+    vertex_graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
+    bodies = connected_components(vertex_graph, directed=False)[0] if n_v else 0
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    cross = np.stack([b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1], b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2],
+                      b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]], axis=1)
+    volume = float(np.einsum("ij,ij->", a, cross)) / 6.0
+    return SurfaceFacts(n_f, watertight, winding, int(face_parts), int(bodies), volume)
+
+
+def closed_surface_problems(facts: SurfaceFacts, max_bodies: int = 1) -> list[str]:
+    """Reasons a mesh with these :func:`surface_facts` is not closed, consistently oriented,
+    outward-facing solids, at most ``max_bodies`` ([] if it is)."""
+    if facts.faces == 0:
         return ["no faces"]
-    if not mesh.is_watertight:
+    problems = []
+    if not facts.watertight:
         problems.append("not watertight (open or non-manifold edges)")
-    if not mesh.is_winding_consistent:
+    if not facts.winding_consistent:
         problems.append("inconsistent face orientation")
-    bodies = mesh.body_count
-    if bodies > max_bodies:
-        problems.append(f"{bodies} separate volumes (max {max_bodies})")
-    if not problems and not mesh.volume > 0:
-        problems.append(f"non-positive enclosed volume {mesh.volume:.3g}")
+    if facts.bodies > max_bodies:
+        problems.append(f"{facts.bodies} separate volumes (max {max_bodies})")
+    if not problems and not facts.volume > 0:
+        problems.append(f"non-positive enclosed volume {facts.volume:.3g}")
     return problems

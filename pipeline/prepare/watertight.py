@@ -13,6 +13,8 @@ import point_cloud_utils as pcu
 import pymeshlab
 import trimesh
 
+from pipeline.prepare.mesh_checks import SurfaceFacts, surface_facts
+
 
 def make_watertight(
     vertices: np.ndarray, faces: np.ndarray, resolution: int, seed: int = 0
@@ -46,32 +48,58 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[n
     return np.asarray(out.vertex_matrix(), dtype=np.float64), np.asarray(out.face_matrix(), dtype=np.int64)
 
 
-def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction: float) -> trimesh.Trimesh:
-    """Merged-vertex mesh with specks dropped and faces oriented outward (positive volume).
+def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction: float
+                ) -> tuple[trimesh.Trimesh, SurfaceFacts]:
+    """Merged-vertex mesh with specks dropped and faces oriented outward (positive volume), and
+    its :func:`surface_facts` (what the verification asks).
 
     Components whose area is below ``min_component_fraction`` of the largest one are debris the
     voxelization left behind (a stray triangle becomes a tiny closed blob); they are removed.
     """
-    mesh = trimesh.Trimesh(vertices, faces, process=True, validate=True)
-    if len(mesh.faces) == 0:
-        return mesh
-    # counted before splitting: the split copies (and hole-fills) every part, wasted on the
-    # usual single-part envelope
-    n_parts = len(trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces))))
-    if n_parts > 1:
+    mesh, facts = _validated(vertices, faces)
+    if facts.faces == 0:
+        return mesh, facts
+    if facts.face_parts > 1:  # the usual envelope is one part: no split (it copies every part)
         parts = mesh.split(only_watertight=False)
         areas = np.array([p.area for p in parts])
         keep = [p for p, a in zip(parts, areas) if a >= min_component_fraction * areas.max()]
         if len(keep) < len(parts):
             mesh = trimesh.util.concatenate(keep)
+            facts = surface_facts(mesh.vertices, mesh.faces)
     # The envelope is one orientation per component; flip components that enclose negative volume.
-    if mesh.is_watertight and mesh.is_winding_consistent:
-        comps = mesh.split(only_watertight=False) if mesh.body_count > 1 else [mesh]
-        if any(c.volume < 0 for c in comps):
+    if facts.watertight and facts.winding_consistent:
+        comps = mesh.split(only_watertight=False) if facts.bodies > 1 else [mesh]
+        volumes = [facts.volume] if facts.bodies <= 1 else [surface_facts(c.vertices, c.faces).volume for c in comps]
+        if any(v < 0 for v in volumes):
             fixed = []
-            for c in comps:
-                if c.volume < 0:
+            for c, v in zip(comps, volumes):
+                if v < 0:
                     c = trimesh.Trimesh(c.vertices, c.faces[:, ::-1], process=False)
                 fixed.append(c)
             mesh = trimesh.util.concatenate(fixed) if len(fixed) > 1 else fixed[0]
-    return mesh
+            facts = surface_facts(mesh.vertices, mesh.faces)
+    return mesh, facts
+
+
+def _validated(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh, SurfaceFacts]:
+    """``trimesh.Trimesh(vertices, faces, process=True, validate=True)`` (the same arrays) and its
+    facts, without trimesh's normal fixing where there is nothing to fix: a one-body envelope
+    already wound consistently and enclosing positive volume (Manifold's usual output), where
+    trimesh would still compute the winding and full mass properties (BENCHMARKS.md)."""
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if mesh.is_empty:
+        return mesh, surface_facts(mesh.vertices, mesh.faces)
+    mesh.update_faces(mesh.unique_faces() & mesh.nondegenerate_faces())
+    facts = surface_facts(mesh.vertices, mesh.faces)
+    extent = float(np.ptp(mesh.vertices, axis=0).max()) if len(mesh.vertices) else 0.0
+    clearly_outward = facts.volume > 1e-6 * extent**3  # no sign doubt against trimesh's own volume
+    fixed = not (facts.winding_consistent and facts.bodies == 1 and (not facts.watertight or clearly_outward))
+    if fixed:
+        mesh.fix_normals()
+    n_vertices = len(mesh.vertices)
+    mesh.remove_infinite_values()
+    mesh.merge_vertices()
+    mesh.metadata["processed"] = True
+    if fixed or len(mesh.vertices) != n_vertices:  # else the same surface, the same facts
+        facts = surface_facts(mesh.vertices, mesh.faces)
+    return mesh, facts
