@@ -240,3 +240,22 @@ def test_surface_facts_answer_as_trimesh_does(name):
     assert (facts.watertight, facts.winding_consistent, facts.face_parts, facts.bodies) == (watertight, winding, parts, bodies)
     if watertight and winding:  # (otherwise the "volume" depends on the formula; the checks never ask it)
         assert facts.volume == pytest.approx(volume, rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("name", list(_surfaces_to_check()))
+def test_validated_mesh_is_what_trimesh_validation_gives(name):
+    from pipeline.prepare.watertight import _validated
+
+    mesh = _surfaces_to_check()[name]
+    v = np.vstack([mesh.vertices, mesh.vertices[:3]])  # duplicate vertices and a duplicate face too
+    f = np.vstack([mesh.faces, [[len(mesh.vertices), len(mesh.vertices) + 1, len(mesh.vertices) + 2]]])
+    ours, facts = _validated(v, f)
+    theirs = trimesh.Trimesh(v, f, process=True, validate=True)
+    assert np.array_equal(ours.vertices, theirs.vertices) and np.array_equal(ours.faces, theirs.faces)
+    assert facts == surface_facts_of(theirs)
+
+
+def surface_facts_of(mesh: trimesh.Trimesh):
+    from pipeline.prepare.mesh_checks import surface_facts
+
+    return surface_facts(mesh.vertices, mesh.faces)

@@ -93,13 +93,13 @@ def _validated(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh
     facts = surface_facts(mesh.vertices, mesh.faces)
     extent = float(np.ptp(mesh.vertices, axis=0).max()) if len(mesh.vertices) else 0.0
     clearly_outward = facts.volume > 1e-6 * extent**3  # no sign doubt against trimesh's own volume
-    fixed = not (facts.winding_consistent and facts.bodies == 1 and (not facts.watertight or clearly_outward))
-    if fixed:
+    to_fix = not (facts.winding_consistent and facts.bodies == 1 and (not facts.watertight or clearly_outward))
+    if to_fix:
         mesh.fix_normals()
     n_vertices = len(mesh.vertices)
     mesh.remove_infinite_values()
     mesh.merge_vertices()
     mesh.metadata["processed"] = True
-    if fixed or len(mesh.vertices) != n_vertices:  # else the same surface, the same facts
+    if to_fix or len(mesh.vertices) != n_vertices:  # else the same surface, the same facts
         facts = surface_facts(mesh.vertices, mesh.faces)
     return mesh, facts
