@@ -59,7 +59,7 @@ class FitSettings:
     lr: float = _arg(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
     lr_schedule: str = _arg("constant", "constant, or cosine: linear warm-up over --warmup-steps, then a cosine "
                             "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)")
-    warmup_steps: int = 0
+    warmup_steps: int = _arg(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
     seed: int = 0
     workers: int = 2  # data loader worker processes per rank
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
