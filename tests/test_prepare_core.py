@@ -13,6 +13,8 @@ import trimesh
 from pipeline.core.records import ModelRef, read_record
 from pipeline.sources.mesh_io import read_ply
 from pipeline.prepare.batch import PrepareSettings, prepare_batch, prepare_model
+from pipeline.prepare.mesh_checks import surface_facts
+from pipeline.prepare.watertight import _validated
 
 FAST = PrepareSettings(resolution=3000, max_faces=4000, n_samples=16384)
 
@@ -232,8 +234,6 @@ def _surfaces_to_check() -> dict[str, trimesh.Trimesh]:
 
 @pytest.mark.parametrize("name", list(_surfaces_to_check()))
 def test_surface_facts_answer_as_trimesh_does(name):
-    from pipeline.prepare.mesh_checks import surface_facts
-
     mesh = _surfaces_to_check()[name]
     facts = surface_facts(mesh.vertices, mesh.faces)
     watertight, winding, parts, bodies, volume = _facts_by_trimesh(mesh)
@@ -244,18 +244,10 @@ def test_surface_facts_answer_as_trimesh_does(name):
 
 @pytest.mark.parametrize("name", list(_surfaces_to_check()))
 def test_validated_mesh_is_what_trimesh_validation_gives(name):
-    from pipeline.prepare.watertight import _validated
-
     mesh = _surfaces_to_check()[name]
     v = np.vstack([mesh.vertices, mesh.vertices[:3]])  # duplicate vertices and a duplicate face too
     f = np.vstack([mesh.faces, [[len(mesh.vertices), len(mesh.vertices) + 1, len(mesh.vertices) + 2]]])
     ours, facts = _validated(v, f)
     theirs = trimesh.Trimesh(v, f, process=True, validate=True)
     assert np.array_equal(ours.vertices, theirs.vertices) and np.array_equal(ours.faces, theirs.faces)
-    assert facts == surface_facts_of(theirs)
-
-
-def surface_facts_of(mesh: trimesh.Trimesh):
-    from pipeline.prepare.mesh_checks import surface_facts
-
-    return surface_facts(mesh.vertices, mesh.faces)
+    assert facts == surface_facts(theirs.vertices, theirs.faces)
