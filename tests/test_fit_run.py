@@ -66,7 +66,9 @@ def test_cosine_schedule_warms_up_decays_and_is_logged(shards, tmp_path):
     assert learning_rate(settings(shards, tmp_path, 6, lr=1e-3), 5) == 1e-3  # constant: the default
     fit(s, progress=False)
     logged = [float(r["lr"]) for r in csv.DictReader(open(tmp_path / "lr" / "log.csv"))]
-    assert logged == pytest.approx(lrs)  # the optimizer ran at the schedule's rate each step
+    assert logged == pytest.approx(lrs)  # the log shows the schedule ...
+    # ... and the optimizer really ran at it (its saved group holds the last step's rate)
+    assert load_checkpoint(tmp_path / "lr" / "checkpoint.pt")["optimizer"]["param_groups"][0]["lr"] == lrs[-1]
     with pytest.raises(ValueError, match="lr_schedule"):
         settings(shards, tmp_path, 6, lr_schedule="linear")
 

@@ -84,10 +84,8 @@ def surface_facts(vertices: np.ndarray, faces: np.ndarray) -> SurfaceFacts:
     face_parts = connected_components(adjacency, directed=False)[0] if n_f else 0
     vertex_graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n_v, n_v))
     bodies = connected_components(vertex_graph, directed=False)[0] if n_v else 0
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    cross = np.stack([b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1], b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2],
-                      b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]], axis=1)
-    volume = float(np.einsum("ij,ij->", a, cross)) / 6.0
+    tri = vertices[faces]
+    volume = float(np.einsum("ij,ij->", tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))) / 6.0
     return SurfaceFacts(n_f, watertight, winding, int(face_parts), int(bodies), volume)
 
 

@@ -68,8 +68,11 @@ def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction:
             facts = surface_facts(mesh.vertices, mesh.faces)
     # The envelope is one orientation per component; flip components that enclose negative volume.
     if facts.watertight and facts.winding_consistent:
-        comps = mesh.split(only_watertight=False) if facts.bodies > 1 else [mesh]
-        volumes = [facts.volume] if facts.bodies <= 1 else [surface_facts(c.vertices, c.faces).volume for c in comps]
+        if facts.bodies > 1:
+            comps = mesh.split(only_watertight=False)
+            volumes = [surface_facts(c.vertices, c.faces).volume for c in comps]
+        else:
+            comps, volumes = [mesh], [facts.volume]
         if any(v < 0 for v in volumes):
             fixed = []
             for c, v in zip(comps, volumes):
@@ -91,7 +94,7 @@ def _validated(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh
         return mesh, surface_facts(mesh.vertices, mesh.faces)
     mesh.update_faces(mesh.unique_faces() & mesh.nondegenerate_faces())
     facts = surface_facts(mesh.vertices, mesh.faces)
-    extent = float(np.ptp(mesh.vertices, axis=0).max()) if len(mesh.vertices) else 0.0
+    extent = float(np.ptp(mesh.vertices, axis=0).max())
     clearly_outward = facts.volume > 1e-6 * extent**3  # no sign doubt against trimesh's own volume
     to_fix = not (facts.winding_consistent and facts.bodies == 1 and (not facts.watertight or clearly_outward))
     if to_fix:
@@ -99,7 +102,6 @@ def _validated(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh
     n_vertices = len(mesh.vertices)
     mesh.remove_infinite_values()
     mesh.merge_vertices()
-    mesh.metadata["processed"] = True
     if to_fix or len(mesh.vertices) != n_vertices:  # else the same surface, the same facts
         facts = surface_facts(mesh.vertices, mesh.faces)
     return mesh, facts
