@@ -1,7 +1,7 @@
 """Raster line drawing → centerline strokes.
 
 Works on any black-on-white line drawing (our renders or a scan): ink mask (fixed level or Otsu)
-→ thinning (scikit-image) → skeleton graph (skan) → junction clustering → spur pruning → joining
+→ thinning (scikit-image) → skeleton paths (``augment.skeleton_graph``) → junction clustering → spur pruning → joining
 branches through junctions by tangent continuity → corner re-snapping (all strokes touching a
 junction end exactly at one least-squares junction point) → smoothing + Douglas–Peucker.
 
@@ -12,14 +12,16 @@ origin at the image's top-left corner, u right, v down, pixel i covering [i, i+1
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
+import numba
 import numpy as np
-from skan import Skeleton
 from skimage.morphology import remove_small_holes, skeletonize
 
 from augment.fitting import cumulative_length, polyline_length, simplify, smooth
 from augment.settings import VectorizeSettings
+from augment.skeleton_graph import skeleton_paths
 
 
 class VectorizeError(ValueError):
@@ -175,8 +177,8 @@ def _smooth_keeping_corners(pts: np.ndarray, closed: bool, settings: VectorizeSe
 
 
 def _skeleton_branches(skel: np.ndarray, settings: VectorizeSettings):
-    """skan paths as branches between tips (degree 1) and merged junction clusters."""
-    sk = Skeleton(skel)
+    """Skeleton paths as branches between tips (degree 1) and merged junction clusters."""
+    sk = skeleton_paths(skel)
     uv = sk.coordinates[:, ::-1].astype(np.float64) + 0.5  # (row, col) → pixel-centre (u, v)
     deg = sk.degrees
     paths = [np.asarray(sk.path(i)) for i in range(sk.n_paths)]
@@ -254,16 +256,33 @@ def _end_points(b: _Branch, end: int) -> np.ndarray:
 
 def _end_tangent(pts: np.ndarray, center: np.ndarray, radius: float, length: float):
     """(near point, unit direction) of a branch leaving a junction, skipping distorted pixels."""
-    pts = pts[: int(2 * (radius + length)) + 6]  # only the part near the junction matters
-    d0 = np.linalg.norm(pts - center, axis=1)
-    start = int(np.argmax(d0 > radius + 1.5)) if (d0 > radius + 1.5).any() else 0
-    rest = pts[start:]
-    s = cumulative_length(rest)
-    k = int(np.searchsorted(s, min(length, s[-1])))
-    k = min(max(k, 1), len(rest) - 1) if len(rest) > 1 else 0
-    d = rest[k] - rest[0] if len(rest) > 1 else pts[-1] - pts[0]
-    n = np.linalg.norm(d)
-    return rest[0], (d / n if n > 1e-9 else np.zeros(2))
+    near, d = _end_offset(np.ascontiguousarray(pts, np.float64), float(center[0]), float(center[1]),
+                          float(radius), float(length))
+    n = np.linalg.norm(d)  # numpy's own 2-vector norm: the compiled loop would round it differently
+    return near, (d / n if n > 1e-9 else np.zeros(2))
+
+
+@numba.njit(cache=True, nogil=True)
+def _end_offset(pts, cx, cy, radius, length):
+    """The first point of ``pts`` past ``radius`` + 1.5 of the centre (or the first point), and the
+    offset from it to the point ``length`` further along (thousands of calls per model)."""
+    m = min(pts.shape[0], int(2 * (radius + length)) + 6)  # only the part near the junction matters
+    start = 0
+    for i in range(m):
+        dx, dy = pts[i, 0] - cx, pts[i, 1] - cy
+        if np.sqrt(dx * dx + dy * dy) > radius + 1.5:
+            start = i
+            break
+    count = m - start
+    if count <= 1:
+        return pts[start].copy(), pts[m - 1] - pts[0]
+    s = np.zeros(count)
+    for i in range(1, count):
+        s[i] = s[i - 1] + math.hypot(pts[start + i, 0] - pts[start + i - 1, 0],
+                                     pts[start + i, 1] - pts[start + i - 1, 1])
+    k = np.searchsorted(s, min(length, s[-1]))
+    k = min(max(k, 1), count - 1)
+    return pts[start].copy(), pts[start + k] - pts[start]
 
 
 def _chain(branches: list[_Branch], centers: np.ndarray, radii: np.ndarray,
