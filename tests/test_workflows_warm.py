@@ -19,11 +19,13 @@ def test_forks_per_task_reads_the_workers_option() -> None:
 
 
 def test_warm_up_compiles_what_the_vectorizer_uses() -> None:
-    # In a fresh interpreter: skan's uncached numba functions are compiled by the warm-up, so a
-    # forked task child finds them ready (numba keeps one signature per compiled variant).
-    code = ("from workflows.warm import warm_stage_code; import skan.csr as c; "
-            "before = len(c._build_paths.signatures); warm_stage_code(); import gc; "
-            "print(before, len(c._build_paths.signatures), gc.get_freeze_count())")
+    # In a fresh interpreter: the vectorizer's numba functions are compiled (or loaded from
+    # numba's cache) by the warm-up, so a forked task child finds them ready (numba keeps one
+    # signature per compiled variant).
+    code = ("from workflows.warm import warm_stage_code; import augment.skeleton_graph as g; "
+            "import augment.vectorize as v; fns = (g._pixel_links, g._walk_all, v._end_offset); "
+            "before = sum(len(f.signatures) for f in fns); warm_stage_code(); import gc; "
+            "print(before, min(len(f.signatures) for f in fns), gc.get_freeze_count())")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     before, after, frozen = map(int, out.stdout.split())
     assert before == 0 and after >= 1

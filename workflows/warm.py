@@ -2,7 +2,7 @@
 
 With ``--workers N`` (N > 1) Luigi runs every task in a forked child. A child inherits what its
 parent has imported and compiled, and loses what it does itself when it exits: without this,
-every augment batch re-compiled skan's numba functions (~3.5 s) and every batch re-imported its
+every augment batch re-compiled the vectorizer's numba functions (skan's then: ~3.5 s) and every batch re-imported its
 stage (~1–1.5 s), which ate the second worker's gain (measured in BENCHMARKS.md).
 """
 
@@ -29,7 +29,7 @@ def forks_per_task(argv: Sequence[str]) -> bool:
 
 def warm_stage_code() -> None:
     """Import every stage and run the vectorizer and the pencil once on a tiny drawing (compiles
-    skan's and the pencil's numba functions in this process); then move everything loaded so far
+    the skeleton paths' and the pencil's numba functions in this process); then move everything loaded so far
     out of the garbage collector's sight."""
     import cv2
     import numpy as np
