@@ -6,16 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from workflows.warm import forks_per_task
-
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def test_forks_per_task_reads_the_workers_option() -> None:
-    assert forks_per_task(["--module", "workflows", "BuildDataset", "--workers", "2"])
-    assert forks_per_task(["BuildDataset", "--workers=4", "--local-scheduler"])
-    assert not forks_per_task(["BuildDataset", "--workers", "1"])
-    assert not forks_per_task(["BuildDataset", "--local-scheduler"])  # luigi.cfg keeps 1 worker
 
 
 def test_warm_up_compiles_what_the_vectorizer_uses() -> None:

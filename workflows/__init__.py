@@ -19,12 +19,10 @@ from workflows.tasks import (  # noqa: E402  (the environment must be set before
 # the `luigi` command (or `python -m luigi`), not an importing test or trainer
 if "luigi" in os.path.basename(sys.argv[0]) or sys.argv[0].endswith(os.path.join("luigi", "__main__.py")):
     from workflows.console import Console
-    from workflows.warm import forks_per_task, warm_stage_code
+    from workflows.warm import warm_stage_code
 
     Console.install()  # progress line, luigi.log in the work folder, summary at exit
-
-    if forks_per_task(sys.argv[1:]):
-        warm_stage_code()
+    warm_stage_code()
 
 __all__ = ["AugmentBatch", "BuildCategory", "BuildDataset", "CategoryShards", "PrepareBatch",
            "RenderBatch", "SourceList"]

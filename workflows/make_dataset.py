@@ -19,6 +19,7 @@ from workflows.console import Console
 from workflows.params import add_task_arguments
 from workflows.tasks import BuildDataset
 from workflows.validate import BuildParameterError
+from workflows.warm import warm_stage_code
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,10 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    if workers > 1:  # Luigi forks a child per task: load and compile the stages once, here
-        from workflows.warm import warm_stage_code
-
-        warm_stage_code()
+    warm_stage_code()  # once here, whether Luigi runs the tasks here or in forked children
     console = Console.install()
     console.watch(task)
     ok = luigi.build([task], local_scheduler=True, workers=workers)

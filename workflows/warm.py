@@ -1,36 +1,22 @@
-"""Load and JIT-compile the stages' code once in a Luigi process that forks a child per task.
+"""Load and JIT-compile the stages' code once in the process that runs Luigi's workers.
 
 With ``--workers N`` (N > 1) Luigi runs every task in a forked child. A child inherits what its
 parent has imported and compiled, and loses what it does itself when it exits: without this,
-every augment batch re-compiled the vectorizer's numba functions (skan's then: ~3.5 s) and every batch re-imported its
-stage (~1–1.5 s), which ate the second worker's gain (measured in BENCHMARKS.md).
+every augment batch re-compiled the vectorizer's numba functions (skan's then: ~3.5 s) and every
+batch re-imported its stage (~1–1.5 s), which ate the second worker's gain (measured in
+BENCHMARKS.md). With one worker the tasks run in this process, which loads the same code anyway;
+the warm-up's ``gc.freeze`` then keeps those imports out of the collector's scans there too.
 """
 
 from __future__ import annotations
 
 import gc
-import re
-from typing import Sequence
-
-
-def forks_per_task(argv: Sequence[str]) -> bool:
-    """Whether this Luigi command line runs tasks in forked children (``--workers`` > 1, on the
-    command line or in luigi.cfg's ``[core]`` section)."""
-    text = " ".join(argv)
-    m = re.search(r"--workers[= ](\d+)", text)
-    if m is None:
-        import luigi.configuration
-
-        n = luigi.configuration.get_config().getint("core", "workers", 1)
-    else:
-        n = int(m.group(1))
-    return n > 1
 
 
 def warm_stage_code() -> None:
     """Import every stage and run the vectorizer and the pencil once on a tiny drawing (compiles
-    the skeleton paths' and the pencil's numba functions in this process); then move everything loaded so far
-    out of the garbage collector's sight."""
+    the skeleton paths' and the pencil's numba functions in this process); then move everything
+    loaded so far out of the garbage collector's sight."""
     import cv2
     import numpy as np
 
