@@ -3,6 +3,7 @@ determinism, resume, and a clear recorded error for every kind of bad input."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from pipeline.core.records import ModelRef, read_record
 from pipeline.sources.mesh_io import read_ply
 from pipeline.prepare.batch import PrepareSettings, prepare_batch, prepare_model
 from pipeline.prepare.mesh_checks import surface_facts
-from pipeline.prepare.watertight import _validated
+from pipeline.prepare.watertight import validated_surface
 
 FAST = PrepareSettings(resolution=3000, max_faces=4000, n_samples=16384)
 
@@ -208,6 +209,7 @@ def _facts_by_trimesh(mesh: trimesh.Trimesh) -> tuple:
     return mesh.is_watertight, mesh.is_winding_consistent, parts, mesh.body_count, mesh.volume
 
 
+@functools.cache  # built once for all the parametrized cases (they only read them)
 def _surfaces_to_check() -> dict[str, trimesh.Trimesh]:
     box = trimesh.creation.box()
     ball = trimesh.creation.icosphere(2)
@@ -247,7 +249,7 @@ def test_validated_mesh_is_what_trimesh_validation_gives(name):
     mesh = _surfaces_to_check()[name]
     v = np.vstack([mesh.vertices, mesh.vertices[:3]])  # duplicate vertices and a duplicate face too
     f = np.vstack([mesh.faces, [[len(mesh.vertices), len(mesh.vertices) + 1, len(mesh.vertices) + 2]]])
-    ours, facts = _validated(v, f)
+    ours, facts = validated_surface(v, f)
     theirs = trimesh.Trimesh(v, f, process=True, validate=True)
     assert np.array_equal(ours.vertices, theirs.vertices) and np.array_equal(ours.faces, theirs.faces)
     assert facts == surface_facts(theirs.vertices, theirs.faces)

@@ -56,7 +56,7 @@ def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction:
     Components whose area is below ``min_component_fraction`` of the largest one are debris the
     voxelization left behind (a stray triangle becomes a tiny closed blob); they are removed.
     """
-    mesh, facts = _validated(vertices, faces)
+    mesh, facts = validated_surface(vertices, faces)
     if facts.faces == 0:
         return mesh, facts
     if facts.face_parts > 1:  # the usual envelope is one part: no split (it copies every part)
@@ -84,7 +84,7 @@ def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction:
     return mesh, facts
 
 
-def _validated(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh, SurfaceFacts]:
+def validated_surface(vertices: np.ndarray, faces: np.ndarray) -> tuple[trimesh.Trimesh, SurfaceFacts]:
     """``trimesh.Trimesh(vertices, faces, process=True, validate=True)`` (the same arrays) and its
     facts, without trimesh's normal fixing where there is nothing to fix: a one-body envelope
     already wound consistently and enclosing positive volume (Manifold's usual output), where
