@@ -114,32 +114,36 @@ def patch_intersections(patches: np.ndarray, alpha: float = 12.0) -> Intersectio
     return mesh_intersections(qm.vertices, qm.triangles(), np.repeat(qm.patch_of_face, 2))
 
 
-def _segments_hit_triangles(p0: np.ndarray, p1: np.ndarray, tri: np.ndarray, eps: float = 1e-12) -> np.ndarray:
-    """Möller–Trumbore: does segment p0→p1 cross triangle ``tri (..., 3, 3)``? → bool (...)."""
+def _segments_hit_triangles(p0: np.ndarray, p1: np.ndarray, tri: np.ndarray, tol: float) -> np.ndarray:
+    """Möller–Trumbore: does segment p0→p1 cross triangle ``tri (..., 3, 3)``? → bool (...).
+    ``tol`` > 0 widens the triangle and the segment by that much in their own parameters."""
     d = p1 - p0
     e1, e2 = tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]
     h = np.cross(d, e2)
     a = (e1 * h).sum(-1)
-    ok = np.abs(a) > eps
+    ok = np.abs(a) > 1e-12
     f = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
     s = p0 - tri[..., 0, :]
     u = f * (s * h).sum(-1)
     q = np.cross(s, e1)
     v = f * (d * q).sum(-1)
     t = f * (e2 * q).sum(-1)
-    return ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
+    return ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= -tol) & (t <= 1 + tol)
 
 
-def triangles_intersect(ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
-    """Pairwise test of triangles ``ta (N, 3, 3)`` with ``tb (N, 3, 3)`` → bool ``(N,)``.
+def triangles_intersect(ta: np.ndarray, tb: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """Pairwise test of triangles ``ta (N, 3, 3)`` with ``tb (N, 3, 3)`` (either may be one
+    triangle, broadcast) → bool ``(N,)``.
 
     Two non-coplanar triangles intersect iff an edge of one crosses the other; coplanar overlaps
-    (measure zero for fitted patches) are not reported.
+    (measure zero for fitted patches) are not reported. ``tol`` > 0 counts near-touching pairs
+    too (the template checks, where patches must keep clear of each other).
     """
+    ta, tb = np.broadcast_arrays(ta, tb)
     hit = np.zeros(len(ta), dtype=bool)
     for x, y in ((ta, tb), (tb, ta)):
         for e in range(3):
-            hit |= _segments_hit_triangles(x[:, e], x[:, (e + 1) % 3], y)
+            hit |= _segments_hit_triangles(x[:, e], x[:, (e + 1) % 3], y, tol)
     return hit
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from train.geometry.intersections import triangles_intersect
 from train.templates.template import JunctionPoint, Template
 
 def _active(tpl: Template, active: list[int] | None) -> list[int]:
@@ -146,31 +147,10 @@ def self_intersections(tpl: Template, tol: float = 1e-9, active: list[int] | Non
         if not cand:
             continue
         cand = np.array(cand)
-        hit = _edges_hit(tri[i][None], tri[cand], tol) | _edges_hit(tri[cand], tri[i][None], tol)
+        hit = triangles_intersect(tri[i][None], tri[cand], tol)
         for j in cand[hit]:
             found.add((int(owner[i]), int(owner[j])))
     return sorted(found)
-
-
-def _edges_hit(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
-    """Does any edge of triangles ``a`` (N|1, 3, 3) meet triangle ``b`` (N|1, 3, 3)? (Möller–Trumbore)"""
-    a, b = np.broadcast_arrays(a, b)
-    hit = np.zeros(len(a), bool)
-    e1, e2 = b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]
-    for k in range(3):
-        o = a[:, k]
-        d = a[:, (k + 1) % 3] - o
-        pv = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, pv)
-        ok = np.abs(det) > 1e-15
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tv = o - b[:, 0]
-        u = np.einsum("ij,ij->i", tv, pv) * inv
-        qv = np.cross(tv, e1)
-        v = np.einsum("ij,ij->i", d, qv) * inv
-        t = np.einsum("ij,ij->i", e2, qv) * inv
-        hit |= ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= -tol) & (t <= 1 + tol)
-    return hit
 
 
 def surface_components(tpl: Template, active: list[int] | None = None) -> int:
