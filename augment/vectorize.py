@@ -1,9 +1,10 @@
 """Raster line drawing → centerline strokes.
 
 Works on any black-on-white line drawing (our renders or a scan): ink mask (fixed level or Otsu)
-→ thinning (scikit-image) → skeleton paths (``augment.skeleton_graph``) → junction clustering → spur pruning → joining
-branches through junctions by tangent continuity → corner re-snapping (all strokes touching a
-junction end exactly at one least-squares junction point) → smoothing + Douglas–Peucker.
+→ thinning (scikit-image) → skeleton paths (``augment.skeleton_graph``) → junction clustering →
+spur pruning → joining branches through junctions by tangent continuity → corner re-snapping
+(all strokes touching a junction end exactly at one least-squares junction point) → smoothing +
+Douglas–Peucker.
 
 Strokes come back as float (K, 2) arrays of (u, v) in the pixel convention of the contract:
 origin at the image's top-left corner, u right, v down, pixel i covering [i, i+1).
