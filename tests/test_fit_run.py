@@ -2,6 +2,7 @@ import csv
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -103,10 +104,11 @@ def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):
 @pytest.mark.slow
 def test_loss_decreases_over_training(shards, tmp_path):
     out = tmp_path / "long"
-    fit(settings(shards, out, 80, lr=1e-3, log_every=10, batch_size=4), progress=False)
-    rows = list(csv.DictReader(open(out / "log.csv")))
-    first, last = float(rows[0]["chamfer"]), float(rows[-1]["chamfer"])
-    assert last < 0.8 * first
+    fit(settings(shards, out, 80, lr=1e-3, log_every=1, batch_size=4), progress=False)
+    chamfer = [float(r["chamfer"]) for r in csv.DictReader(open(out / "log.csv"))]
+    # means of ten steps: one batch's loss moves by ±20 % with the batch, and on some CPUs the
+    # single steps 10 and 80 alone came out 0.83 apart although the loss fell (0.61-0.68 as means)
+    assert len(chamfer) == 80 and np.mean(chamfer[-10:]) < 0.8 * np.mean(chamfer[:10])
 
 
 def test_validation_keeps_the_best_checkpoint(shards, tmp_path):
