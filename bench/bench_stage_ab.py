@@ -8,7 +8,8 @@ measured alternately (A B A B ...) over the same models does not. ``--work`` is 
 of a ``bench/bench_pipeline.py`` run (embree backend): the stage is re-run from its inputs there
 (prepare: the source meshes; render: the prepared line meshes, all in ONE embree worker, so its
 start-up is included once; augment: the rendered views, 8 views x 4 variants) into a temporary
-folder, every ``--every``-th model. Each side runs in a fresh process with its root first on the
+folder, every ``--every``-th model; ``vectorize`` times only the vectorizer, every ``--every``-th
+rendered view (any work folder with embree or Freestyle renders; the figure is per view). Each side runs in a fresh process with its root first on the
 path and its imports and numba compilation done before timing (as a long-lived worker would).
 """
 
@@ -32,10 +33,20 @@ def cpu_seconds() -> float:
 
 
 def measure(stage: str, work: Path, every: int) -> dict:
-    """Run the stage here (the code on sys.path) and return its CPU seconds per model."""
+    """Run the stage here (the code on sys.path) and return its CPU seconds per model (per view
+    for ``vectorize``)."""
     from workflows.warm import warm_stage_code
 
     warm_stage_code()
+    if stage == "vectorize":
+        from augment.batch import load_gray
+        from augment.vectorize import vectorize
+
+        views = [load_gray(p) for p in sorted(glob.glob(str(work / "render-*" / "*" / "*" / "view_*.png")))[::every]]
+        c = cpu_seconds()
+        for gray in views:
+            vectorize(gray)
+        return {"models": len(views), "cpu_per_model": (cpu_seconds() - c) / max(len(views), 1)}
     key = "augment" if stage == "augment" else "prepare"
     records = sorted(glob.glob(str(work / f"{key}-*" / "*" / "*" / "record.json")))[::every]
     docs = [(Path(r).parent, json.loads(Path(r).read_text())) for r in records]
@@ -72,7 +83,7 @@ def measure(stage: str, work: Path, every: int) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--work", type=Path, required=True)
-    ap.add_argument("--stage", choices=("prepare", "render", "augment"), required=True)
+    ap.add_argument("--stage", choices=("prepare", "render", "augment", "vectorize"), required=True)
     ap.add_argument("--roots", type=Path, nargs=2, metavar=("A", "B"))
     ap.add_argument("--every", type=int, default=1)
     ap.add_argument("--rounds", type=int, default=2)
@@ -90,9 +101,11 @@ def main() -> int:
                                  cwd=root, env=env, capture_output=True, text=True, check=True)
             res = json.loads(out.stdout.strip().splitlines()[-1])
             figures[str(root)].append(res["cpu_per_model"])
-            print(f"{root}: {res['cpu_per_model']:.3f} core-s per model ({res['models']} models)", flush=True)
+            unit = "view" if args.stage == "vectorize" else "model"
+            print(f"{root}: {res['cpu_per_model']:.4f} core-s per {unit} ({res['models']} {unit}s)", flush=True)
     a, b = (statistics.median(figures[str(r)]) for r in args.roots)
-    print(f"{args.stage}: median {a:.3f} -> {b:.3f} core-s per model (B/A {b / a:.2f}); load average {os.getloadavg()[0]:.1f}")
+    unit = "view" if args.stage == "vectorize" else "model"
+    print(f"{args.stage}: median {a:.4f} -> {b:.4f} core-s per {unit} (B/A {b / a:.2f}); load average {os.getloadavg()[0]:.1f}")
     return 0
 
 
