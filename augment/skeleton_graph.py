@@ -64,10 +64,11 @@ def _pixel_links(labels: np.ndarray, rows: np.ndarray, cols: np.ndarray):
 
 @numba.njit(cache=True, nogil=True)
 def _link_position(indptr: np.ndarray, indices: np.ndarray, a: int, b: int) -> int:
-    for k in range(indptr[a], indptr[a + 1]):
-        if indices[k] == b:
-            return k
-    return -1
+    """Where the link a→b sits in ``indices`` (links are symmetric, so it is always found)."""
+    k = indptr[a]
+    while indices[k] != b:
+        k += 1
+    return k
 
 
 @numba.njit(cache=True, nogil=True)
@@ -75,8 +76,9 @@ def _walk(indptr, indices, visited, degrees, node, neighbor, buf, start_j):
     buf[start_j] = node
     start_node = node
     j = start_j + 1
-    while not visited[_link_position(indptr, indices, node, neighbor)]:
-        visited[_link_position(indptr, indices, node, neighbor)] = True
+    k = _link_position(indptr, indices, node, neighbor)
+    while not visited[k]:
+        visited[k] = True
         visited[_link_position(indptr, indices, neighbor, node)] = True
         buf[j] = neighbor
         if degrees[neighbor] != 2 or neighbor == start_node:
@@ -84,14 +86,14 @@ def _walk(indptr, indices, visited, degrees, node, neighbor, buf, start_j):
         n1, n2 = indices[indptr[neighbor]], indices[indptr[neighbor] + 1]
         nxt = n1 if n1 != node else n2
         node, neighbor = neighbor, nxt
+        k = _link_position(indptr, indices, node, neighbor)
         j += 1
     return j - start_j + 1  # skan's count, kept so that the paths are the same
 
 
 @numba.njit(cache=True, nogil=True)
-def _walk_all(indptr: np.ndarray, indices: np.ndarray, buf_size: int, max_paths: int):
+def _walk_all(indptr: np.ndarray, indices: np.ndarray, degrees: np.ndarray, buf_size: int, max_paths: int):
     n = indptr.size - 1
-    degrees = indptr[1:] - indptr[:-1]
     visited = np.zeros(indices.size, np.bool_)
     buf = np.zeros(buf_size, np.int64)
     path_ptr = np.zeros(max_paths + 1, np.int64)
@@ -100,9 +102,8 @@ def _walk_all(indptr: np.ndarray, indices: np.ndarray, buf_size: int, max_paths:
     for node in range(n):  # from tips and junctions
         if degrees[node] > 2 or degrees[node] == 1:
             for k in range(indptr[node], indptr[node + 1]):
-                neighbor = indices[k]
                 if not visited[k]:
-                    steps = _walk(indptr, indices, visited, degrees, node, neighbor, buf, j)
+                    steps = _walk(indptr, indices, visited, degrees, node, indices[k], buf, j)
                     path_ptr[p + 1] = path_ptr[p] + steps
                     p += 1
                     j += steps
@@ -152,5 +153,5 @@ def skeleton_paths(skel: np.ndarray) -> SkeletonPaths:
     extra = indices.size // 4
     ends = degrees[degrees != 2]
     buf_size = indices.size + int(np.maximum(0, ends - 1).sum()) + extra
-    path_ptr, buf = _walk_all(indptr, indices, buf_size, int(ends.sum()) + extra)
+    path_ptr, buf = _walk_all(indptr, indices, degrees, buf_size, int(ends.sum()) + extra)
     return SkeletonPaths(np.stack([rows, cols], axis=1), degrees, path_ptr, buf)

@@ -257,17 +257,18 @@ def _end_points(b: _Branch, end: int) -> np.ndarray:
 
 def _end_tangent(pts: np.ndarray, center: np.ndarray, radius: float, length: float):
     """(near point, unit direction) of a branch leaving a junction, skipping distorted pixels."""
-    near, d = _end_offset(np.ascontiguousarray(pts, np.float64), float(center[0]), float(center[1]),
-                          float(radius), float(length))
+    near = pts[: int(2 * (radius + length)) + 6]  # only the part near the junction matters
+    first, d = _end_offset(np.ascontiguousarray(near, np.float64), float(center[0]), float(center[1]),
+                           float(radius), float(length))
     n = np.linalg.norm(d)  # numpy's own 2-vector norm: the compiled loop would round it differently
-    return near, (d / n if n > 1e-9 else np.zeros(2))
+    return first, (d / n if n > 1e-9 else np.zeros(2))
 
 
 @numba.njit(cache=True, nogil=True)
 def _end_offset(pts, cx, cy, radius, length):
     """The first point of ``pts`` past ``radius`` + 1.5 of the centre (or the first point), and the
     offset from it to the point ``length`` further along (thousands of calls per model)."""
-    m = min(pts.shape[0], int(2 * (radius + length)) + 6)  # only the part near the junction matters
+    m = pts.shape[0]
     start = 0
     for i in range(m):
         dx, dy = pts[i, 0] - cx, pts[i, 1] - cy

@@ -9,7 +9,8 @@ of a ``bench/bench_pipeline.py`` run (embree backend): the stage is re-run from 
 (prepare: the source meshes; render: the prepared line meshes, all in ONE embree worker, so its
 start-up is included once; augment: the rendered views, 8 views x 4 variants) into a temporary
 folder, every ``--every``-th model; ``vectorize`` times only the vectorizer, every ``--every``-th
-rendered view (any work folder with embree or Freestyle renders; the figure is per view). Each side runs in a fresh process with its root first on the
+rendered view (any work folder with embree or Freestyle renders; the figure is per view). Each
+side runs in a fresh process with its root first on the
 path and its imports and numba compilation done before timing (as a long-lived worker would).
 """
 
@@ -92,6 +93,7 @@ def main() -> int:
     if args.measure_here:
         print(json.dumps(measure(args.stage, args.work, args.every)))
         return 0
+    unit = "view" if args.stage == "vectorize" else "model"
     figures: dict[str, list[float]] = {str(r): [] for r in args.roots}
     for _ in range(args.rounds):
         for root in args.roots:
@@ -101,10 +103,8 @@ def main() -> int:
                                  cwd=root, env=env, capture_output=True, text=True, check=True)
             res = json.loads(out.stdout.strip().splitlines()[-1])
             figures[str(root)].append(res["cpu_per_model"])
-            unit = "view" if args.stage == "vectorize" else "model"
             print(f"{root}: {res['cpu_per_model']:.4f} core-s per {unit} ({res['models']} {unit}s)", flush=True)
     a, b = (statistics.median(figures[str(r)]) for r in args.roots)
-    unit = "view" if args.stage == "vectorize" else "model"
     print(f"{args.stage}: median {a:.4f} -> {b:.4f} core-s per {unit} (B/A {b / a:.2f}); load average {os.getloadavg()[0]:.1f}")
     return 0
 

@@ -4,8 +4,9 @@ blind baseline, and when it stops moving).
 
 Usage: .venv/bin/python bench/figure_curves.py --run LABEL=RUN_DIR [--run ...] \\
        --baselines EVAL_VAL.json --out docs/images/curves_<category>.png [--title TEXT]
-``EVAL_VAL.json`` is ``python -m train evaluate --split val --out EVAL_VAL.json`` of any of the
-runs (template and blind do not depend on the run's weights beyond the blind mean shape).
+``EVAL_VAL.json`` is ``python -m train evaluate --split val --out EVAL_VAL.json`` of one of the
+runs: the template line is the same for every run on the dataset, the blind line is that run's
+own mean output (another run's blind baseline differs by a few per cent).
 """
 
 from __future__ import annotations

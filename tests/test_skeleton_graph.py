@@ -46,6 +46,7 @@ def test_noise_skeletons_match_skan(seed):
 def test_odd_skeletons_match_skan():
     block = np.zeros((8, 8), bool)
     block[2:4, 2:4] = True                     # a 2×2 block: every pixel a junction
+    assert skeleton_paths(block).degrees.sum() == 2 * 3  # of its 6 links a spanning tree keeps 3
     assert_same_as_skan(block)
     border = np.zeros((6, 6), bool)
     border[0, :] = border[:, 0] = True         # lines on the image border, meeting at a corner
