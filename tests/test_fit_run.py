@@ -145,3 +145,35 @@ def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path
     assert run.settings.encoder_width == 16 and run.step == 1
     assert run.model.encoder.out_features == 128
     assert ck["optimizer"]["param_groups"][0]["fused"]  # the fused Adam kernel on CPU
+
+
+def test_gradient_clipping_bounds_the_update_and_logs_the_norm(shards, tmp_path):
+    from train.fit import train_step
+    from train.model import SketchToPatches, TrainingNet
+    from train.objective import Objective
+
+    template = load_template("sphere24")
+    data = DataSettings(max_views=1, n_points=300, image_size=32, shuffle_buffer=2)
+    batch = next(iter(make_loader(shards, "knife", "train", data, seed=0, batch_size=2)))
+    objective = Objective(template, 300)
+    st = objective.sample_st(torch.Generator().manual_seed(0))
+
+    def update(clip: float) -> tuple[float, float]:
+        torch.manual_seed(0)
+        net = TrainingNet(SketchToPatches(template.initial_params(), encoder_width=16))
+        before = torch.cat([p.detach().flatten().clone() for p in net.parameters()])
+        sgd = torch.optim.SGD(net.parameters(), lr=1.0)  # the step is the (clipped) gradient itself
+        _, terms = train_step(net, sgd, objective, batch, st, LossWeights(collision=0.0), torch.device("cpu"),
+                              clip_grad=clip)
+        after = torch.cat([p.detach().flatten() for p in net.parameters()])
+        return float(terms["grad_norm"]), float((after - before).norm())
+
+    norm, free = update(0.0)
+    assert norm > 0 and free == pytest.approx(norm, rel=1e-3)  # off: the logged norm is the step taken
+    clipped_norm, clipped = update(norm / 10)
+    assert clipped_norm == pytest.approx(norm, rel=1e-5)  # logged before clipping
+    assert clipped == pytest.approx(norm / 10, rel=1e-3)
+    fit(settings(shards, tmp_path / "clip", 2, clip_grad=0.5), progress=False)
+    rows = list(csv.DictReader(open(tmp_path / "clip" / "log.csv")))
+    assert all(float(r["grad_norm"]) > 0 for r in rows)
+    assert load_run(tmp_path / "clip" / "checkpoint.pt").settings.clip_grad == 0.5

@@ -36,7 +36,7 @@ from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
 from train.templates import Template, load_template
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "seconds")
+CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "grad_norm", "seconds")
 LR_SCHEDULES = ("constant", "cosine")
 
 
@@ -76,6 +76,8 @@ class FitSettings:
                                 "the thin-walled bathtub and mug, docs/train.md)")
     contrast: float = _arg(0.0, "weight of the contrastive term on the encoder's codes (two drawings of one model "
                            "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
+    clip_grad: float = _arg(0.0, "clip the gradient's global norm to this before each update (0: off; "
+                            "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)")
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
@@ -209,12 +211,14 @@ def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> t
 
 def train_step(
     net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
-    weights: LossWeights, device: torch.device, contrast: float = 0.0,
+    weights: LossWeights, device: torch.device, contrast: float = 0.0, clip_grad: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
     terms (``bench/bench_step_profile.py`` times this); with ``contrast`` > 0 the batch must hold
-    ``pair_images`` and the terms include "contrast"."""
+    ``pair_images`` and the terms include "contrast". The terms also hold "grad_norm", the
+    gradient's global norm before clipping; with ``clip_grad`` > 0 a larger one is scaled down to
+    it (under DDP the gradients are already averaged over ranks here, so every rank clips alike)."""
     pair = batch["pair_images"].to(device) if contrast > 0 else None
     out = net(batch["images"].to(device), batch["view_mask"].to(device), pair)
     terms = objective.batch_terms(out["params"], batch, st, weights)
@@ -224,6 +228,8 @@ def train_step(
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
+    limit = clip_grad if clip_grad > 0 else math.inf
+    terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(net.parameters(), limit).detach()
     optimizer.step()
     return loss, terms
 
@@ -287,7 +293,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         for group in optimizer.param_groups:
             group["lr"] = lr
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
-                                 settings.contrast)
+                                 settings.contrast, settings.clip_grad)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
