@@ -3,7 +3,8 @@
 Run directory layout::
 
     <out>/config.json       settings of the run (a resume must match them)
-    <out>/checkpoint.pt     model + optimizer + step (rank 0, atomic)
+    <out>/checkpoint.pt     model + optimizer + step (rank 0, atomic); with ``--ema``, "model" is
+                            the weight average and "train_model" the weights training continues
     <out>/best.pt           the checkpoint with the lowest validation Chamfer so far (``val_every``)
     <out>/log.csv           step, total and per-term losses, validation Chamfer, seconds
     <out>/tb/               TensorBoard scalars
@@ -35,6 +36,7 @@ from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
 from train.templates import Template, load_template
+from train.weight_average import WeightAverage
 
 CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "grad_norm", "seconds")
 LR_SCHEDULES = ("constant", "cosine")
@@ -78,6 +80,8 @@ class FitSettings:
                            "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
     clip_grad: float = _arg(0.0, "clip the gradient's global norm to this before each update (0: off; "
                             "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)")
+    ema: float = _arg(0.0, "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
+                      "validate, keep and hand out the average instead of the training weights (0: off; BENCHMARKS.md)")
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
@@ -94,14 +98,17 @@ class FitSettings:
 
 def save_checkpoint(
     path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
-    template: Template, val_chamfer: float | None = None,
+    template: Template, val_chamfer: float | None = None, train_model: torch.nn.Module | None = None,
 ) -> None:
+    """``model`` is the network the checkpoint hands out (evaluate, predict); ``train_model``, when
+    it differs (a weight average is handed out), holds the weights a resume continues training."""
     with atomic_path(path) as tmp:
         torch.save(
             {
                 "step": step,
                 "val_chamfer": val_chamfer,
                 "model": model.state_dict(),
+                **({"train_model": train_model.state_dict()} if train_model is not None else {}),
                 "optimizer": optimizer.state_dict(),
                 "settings": dataclasses.asdict(settings),
                 "template": settings.template,
@@ -257,9 +264,14 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         saved = checkpoint_settings(ckpt)
         if saved.identity() != settings.identity():
             raise ValueError(f"{out}: existing run has different settings; use another --out")
-        model.load_state_dict(ckpt["model"])
+        model.load_state_dict(ckpt.get("train_model", ckpt["model"]))
         optimizer.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
+    average = WeightAverage(model, settings.ema) if settings.ema > 0 else None
+    if average is not None and ckpt is not None:
+        average.load_state_dict(ckpt["model"])
+    served = average.model if average is not None else model  # what validation sees and checkpoints hand out
+    trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
     objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
     data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size,
@@ -294,13 +306,16 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             group["lr"] = lr
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
                                  settings.contrast, settings.clip_grad)
+        if average is not None:
+            average.update(model)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
-            val = validation_chamfer(model, val_loader, objective, info.device)
+            val = validation_chamfer(served, val_loader, objective, info.device)
             if val < best:
                 best = val
-                save_checkpoint(out / "best.pt", model, optimizer, done, settings, template, val_chamfer=val)
+                save_checkpoint(out / "best.pt", served, optimizer, done, settings, template, val_chamfer=val,
+                                train_model=trained)
         if done % settings.log_every == 0 or done == settings.steps or val is not None:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
@@ -308,7 +323,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 logger.log(done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr},
                            time.perf_counter() - t0)
         if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
-            save_checkpoint(ckpt_path, model, optimizer, done, settings, template)
+            save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained)
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.4f}")
@@ -316,7 +331,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         bar.close()
     if logger:
         logger.close()
-    return {"step": settings.steps, "last_loss": last, "out": str(out), "param_digest": param_digest(model)}
+    return {"step": settings.steps, "last_loss": last, "out": str(out), "param_digest": param_digest(served)}
 
 
 def param_digest(model: torch.nn.Module) -> str:
