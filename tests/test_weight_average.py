@@ -17,13 +17,14 @@ from train.weight_average import WeightAverage
 def test_update_moves_floats_a_fraction_and_copies_counters():
     net = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.BatchNorm1d(4))
     avg = WeightAverage(net, 0.9)
+    assert [avg.decay_at(s) for s in (0, 8, 80, 10_000)] == [0.1, 0.5, 0.9, 0.9]  # warms up to 0.9
     assert all(p.requires_grad is False for p in avg.model.parameters())
     before = {k: v.clone() for k, v in avg.state_dict().items()}
     with torch.no_grad():
         for p in net.parameters():
             p.add_(1.0)
     net.train()(torch.randn(5, 3))  # BatchNorm statistics and its step counter move
-    avg.update(net)
+    avg.update(net, 1000)
     now, live = avg.state_dict(), net.state_dict()
     for k, v in now.items():
         if v.is_floating_point():
@@ -44,21 +45,21 @@ def test_a_run_hands_out_the_average_and_resumes_both(shards, tmp_path):
     out = tmp_path / "ema"
     base = dict(dataset=str(shards), category="knife", template="sphere24", out=str(out), batch_size=2,
                 workers=0, n_points=300, image_size=32, max_views=1, log_every=1, checkpoint_every=1,
-                val_every=1, encoder_width=16, weights=LossWeights(collision=0.0), ema=0.5)  # fmt: skip
+                val_every=1, encoder_width=16, weights=LossWeights(collision=0.0), ema=0.2)  # fmt: skip
     fit(FitSettings(**base, steps=2), progress=False)
     ck = load_checkpoint(out / "checkpoint.pt")
     served, trained = ck["model"], ck["train_model"]
     assert any(not torch.equal(served[k], trained[k]) for k in served)  # the average differs from training
-    assert load_run(out / "checkpoint.pt").settings.ema == 0.5
+    assert load_run(out / "checkpoint.pt").settings.ema == 0.2
     best = load_checkpoint(out / "best.pt")
     assert "train_model" in best and best["step"] in (1, 2)
-    # a resume trains on from train_model and averages on from model
+    # a resume trains on from train_model and averages on from model (step 2's decay: min(0.2, 3/12))
     fit(FitSettings(**base, steps=3), progress=False)
     ck3 = load_checkpoint(out / "checkpoint.pt")
     assert ck3["step"] == 3
     for k, v in ck3["model"].items():
         if v.is_floating_point():
-            assert torch.allclose(v, 0.5 * served[k] + 0.5 * ck3["train_model"][k], atol=1e-6), k
+            assert torch.allclose(v, 0.2 * served[k] + 0.8 * ck3["train_model"][k], atol=1e-6), k
     # off (the default): no separate training weights are stored
     fit(FitSettings(**{**base, "out": str(tmp_path / "plain"), "ema": 0.0}, steps=1), progress=False)
     assert "train_model" not in load_checkpoint(tmp_path / "plain" / "checkpoint.pt")

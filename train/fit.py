@@ -307,7 +307,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
                                  settings.contrast, settings.clip_grad)
         if average is not None:
-            average.update(model)
+            average.update(model, step)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):

@@ -3,9 +3,10 @@
 At a constant learning rate the weights keep wandering around a good region (the validation
 curve spikes and recovers); their running average sits nearer its middle. Each update moves
 every averaged floating-point tensor (parameters and BatchNorm statistics) a fraction
-``1 - decay`` towards the training network's, and copies integer buffers (BatchNorm's step
-counters). The average starts as a copy of the network, so early on it trails the training
-weights by about ``1 / (1 - decay)`` steps.
+``1 - d`` towards the training network's and copies integer buffers (BatchNorm's step
+counters). The decay warms up, ``d = min(decay, (1 + step) / (10 + step))``: with a fixed 0.999
+from the first step the random initial weights keep 0.999^step of the average (27 % at step
+1,300), and a knife run's average validated far worse than its training weights (stop 21).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import torch
 
 
 class WeightAverage:
-    """The averaged copy of ``model``; ``update(model)`` after every optimizer step."""
+    """The averaged copy of ``model``; ``update(model, step)`` after every optimizer step."""
 
     def __init__(self, model: torch.nn.Module, decay: float):
         if not 0.0 < decay < 1.0:
@@ -25,13 +26,19 @@ class WeightAverage:
         self.model = copy.deepcopy(model).eval()
         self.model.requires_grad_(False)
 
+    def decay_at(self, step: int) -> float:
+        """The decay of the update after 0-based ``step`` (a function of the step alone, so a
+        resumed run continues it)."""
+        return min(self.decay, (1.0 + step) / (10.0 + step))
+
     @torch.no_grad()
-    def update(self, model: torch.nn.Module) -> None:
+    def update(self, model: torch.nn.Module, step: int) -> None:
+        weight = 1.0 - self.decay_at(step)
         mine, theirs = self.model.state_dict(), model.state_dict()
         for name, avg in mine.items():
             new = theirs[name].detach()
             if avg.is_floating_point():
-                avg.lerp_(new, 1.0 - self.decay)
+                avg.lerp_(new, weight)
             else:
                 avg.copy_(new)
 
