@@ -63,3 +63,5 @@ def test_a_run_hands_out_the_average_and_resumes_both(shards, tmp_path):
     # off (the default): no separate training weights are stored
     fit(FitSettings(**{**base, "out": str(tmp_path / "plain"), "ema": 0.0}, steps=1), progress=False)
     assert "train_model" not in load_checkpoint(tmp_path / "plain" / "checkpoint.pt")
+    with pytest.raises(ValueError, match="ema"):
+        FitSettings(**{**base, "ema": 1.0}, steps=1)

@@ -87,6 +87,10 @@ class FitSettings:
     def __post_init__(self) -> None:
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule {self.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
+        if not (self.ema == 0 or 0 < self.ema < 1):
+            raise ValueError(f"ema {self.ema!r}: expected 0 (off) or a decay between 0 and 1")
+        if not self.clip_grad >= 0:
+            raise ValueError(f"clip_grad {self.clip_grad!r}: expected 0 (off) or a positive norm")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
