@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader  # noqa: E402
-from train.fit import make_optimizer, train_step  # noqa: E402
+from train.fit import clip_gradient, make_optimizer, train_step  # noqa: E402
 from train.losses.terms import LOSS_TERMS, TermInputs  # noqa: E402
 from train.losses.total import weighted_sum  # noqa: E402
 from train.losses.weights import template_weights  # noqa: E402
@@ -90,6 +90,8 @@ def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, 
     tick("backward: loss graph")
     params.backward(grad)
     tick("backward: encoder + head")
+    clip_gradient(net, 0.0)
+    tick("gradient norm (log.csv)")
     optimizer.step()
     tick("optimizer step (Adam)")
 

@@ -19,13 +19,13 @@ def test_update_moves_floats_a_fraction_and_copies_counters():
     avg = WeightAverage(net, 0.9)
     assert [avg.decay_at(s) for s in (0, 8, 80, 10_000)] == [0.1, 0.5, 0.9, 0.9]  # warms up to 0.9
     assert all(p.requires_grad is False for p in avg.model.parameters())
-    before = {k: v.clone() for k, v in avg.state_dict().items()}
+    before = {k: v.clone() for k, v in avg.model.state_dict().items()}
     with torch.no_grad():
         for p in net.parameters():
             p.add_(1.0)
     net.train()(torch.randn(5, 3))  # BatchNorm statistics and its step counter move
-    avg.update(net, 1000)
-    now, live = avg.state_dict(), net.state_dict()
+    avg.update(1000)
+    now, live = avg.model.state_dict(), net.state_dict()
     for k, v in now.items():
         if v.is_floating_point():
             assert torch.allclose(v, 0.9 * before[k] + 0.1 * live[k], atol=1e-6), k

@@ -220,6 +220,16 @@ def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> t
     return torch.optim.Adam(model.parameters(), lr=lr, fused=torch.device(device).type in ("cpu", "cuda"))
 
 
+def clip_gradient(net: torch.nn.Module, limit: float) -> torch.Tensor:
+    """The gradient's global norm; with ``limit`` > 0 a larger gradient is scaled down to it
+    (no scaling pass when off: the norm is only measured, for log.csv)."""
+    grads = [p.grad for p in net.parameters() if p.grad is not None]
+    norm = torch.nn.utils.get_total_norm(grads).detach()
+    if limit > 0:
+        torch.nn.utils.clip_grads_with_norm_(net.parameters(), limit, norm)
+    return norm
+
+
 def train_step(
     net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
     weights: LossWeights, device: torch.device, contrast: float = 0.0, clip_grad: float = 0.0,
@@ -239,8 +249,7 @@ def train_step(
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
-    limit = clip_grad if clip_grad > 0 else math.inf
-    terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(net.parameters(), limit).detach()
+    terms["grad_norm"] = clip_gradient(net, clip_grad)
     optimizer.step()
     return loss, terms
 
@@ -273,7 +282,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         start = int(ckpt["step"])
     average = WeightAverage(model, settings.ema) if settings.ema > 0 else None
     if average is not None and ckpt is not None:
-        average.load_state_dict(ckpt["model"])
+        average.model.load_state_dict(ckpt["model"])
     served = average.model if average is not None else model  # what validation sees and checkpoints hand out
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
@@ -311,7 +320,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
                                  settings.contrast, settings.clip_grad)
         if average is not None:
-            average.update(model, step)
+            average.update(step)
         done = step + 1
         val = None
         if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):

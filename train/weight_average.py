@@ -17,7 +17,10 @@ import torch
 
 
 class WeightAverage:
-    """The averaged copy of ``model``; ``update(model, step)`` after every optimizer step."""
+    """The averaged copy ``.model`` of ``model``; ``update(step)`` after every optimizer step.
+
+    The tensor pairs are taken once: the optimizer, BatchNorm and ``load_state_dict`` all change
+    the live tensors in place, so each update is one pass over them, no state-dict rebuilding."""
 
     def __init__(self, model: torch.nn.Module, decay: float):
         if not 0.0 < decay < 1.0:
@@ -25,6 +28,10 @@ class WeightAverage:
         self.decay = decay
         self.model = copy.deepcopy(model).eval()
         self.model.requires_grad_(False)
+        live = model.state_dict(keep_vars=True)
+        pairs = [(avg, live[name].detach()) for name, avg in self.model.state_dict().items()]
+        self._floats = [(a, b) for a, b in pairs if a.is_floating_point()]
+        self._others = [(a, b) for a, b in pairs if not a.is_floating_point()]
 
     def decay_at(self, step: int) -> float:
         """The decay of the update after 0-based ``step`` (a function of the step alone, so a
@@ -32,18 +39,9 @@ class WeightAverage:
         return min(self.decay, (1.0 + step) / (10.0 + step))
 
     @torch.no_grad()
-    def update(self, model: torch.nn.Module, step: int) -> None:
+    def update(self, step: int) -> None:
         weight = 1.0 - self.decay_at(step)
-        mine, theirs = self.model.state_dict(), model.state_dict()
-        for name, avg in mine.items():
-            new = theirs[name].detach()
-            if avg.is_floating_point():
-                avg.lerp_(new, weight)
-            else:
-                avg.copy_(new)
-
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        return self.model.state_dict()
-
-    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        self.model.load_state_dict(state)
+        for avg, new in self._floats:
+            avg.lerp_(new, weight)
+        for avg, new in self._others:
+            avg.copy_(new)
