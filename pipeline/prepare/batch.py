@@ -30,12 +30,14 @@ from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_
 from pipeline.prepare.settings import PrepareSettings
 from pipeline.prepare.sampling import sample_surface
 from pipeline.core.seeding import derive_seed, rng_for
-from pipeline.prepare.watertight import clean_solid, decimate, make_watertight
+from pipeline.prepare.watertight import clean_solid, decimate, make_watertight, pull_to_source
 
 __all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
 METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
+    "pull": "envelope vertices moved pull_to_source of the way to their closest source point, folds"
+            " and hole caps left in place (pipeline.prepare.watertight.pull_to_source)",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
@@ -64,6 +66,9 @@ def repair_mesh(
         t = time.perf_counter()
         wv, wf = make_watertight(vertices, faces, resolution, seed)
         timings["watertight"] = timings.get("watertight", 0.0) + time.perf_counter() - t
+        t = time.perf_counter()
+        wv = pull_to_source(wv, wf, vertices, faces, settings.pull_to_source)
+        timings["pull"] = timings.get("pull", 0.0) + time.perf_counter() - t
         t = time.perf_counter()
         dv, df = decimate(wv, wf, settings.max_faces)
         timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t

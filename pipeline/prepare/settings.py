@@ -7,10 +7,15 @@ import dataclasses
 
 @dataclasses.dataclass(frozen=True)
 class PrepareSettings:
-    # Manifold octree leaf count (the octree deepens in steps, so the envelope has 10k-54k faces,
-    # median ~25k, at 5000 for the 104-model bench corpus): ~0.4 s CPU per model on one core. Thin
-    # parts survive: the envelope inflates by about one cell, never drops.
-    resolution: int = 5000
+    # Manifold octree leaf count. Thin parts survive: the envelope inflates by about one cell
+    # (0.026 of the unit-sphere radius at 2500, 0.016 at 5000), never drops. 2500 costs about a
+    # third of 5000's CPU (0.07 vs 0.18 s per model) and, pulled back (below), lies three times
+    # closer to the source than 5000 does unpulled (BENCHMARKS.md, stop 22). 2000 would be cheaper
+    # still but fuses the procedural airplanes' detached engines with their pylons.
+    resolution: int = 2500
+    # Move the envelope's vertices this fraction of the way back to the source surface
+    # (pipeline.prepare.watertight.pull_to_source; 0: off). Below 1 so thin walls keep two sides.
+    pull_to_source: float = 0.9
     # Decimate the envelope down to this many faces. Above the usual envelope's size, so decimation
     # is the exception (a dense input): at 20000 it cost ~0.16 CPU s per model for a few thousand
     # faces less (BENCHMARKS.md, stop 17); the samples lie on the mesh either way.
@@ -38,5 +43,7 @@ class PrepareSettings:
         for name in ("resolution", "max_faces", "n_samples", "max_input_faces", "max_input_bytes", "max_bodies"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not 0.0 <= self.pull_to_source < 1.0:
+            raise ValueError(f"pull_to_source must be in [0, 1), got {self.pull_to_source!r}")
         if not self.max_abs_coordinate > 0 or not 0.0 <= self.min_component_fraction < 1.0 or self.fallback_attempts < 0:
             raise ValueError("max_abs_coordinate must be > 0, min_component_fraction in [0, 1), fallback_attempts >= 0")

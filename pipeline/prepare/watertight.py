@@ -2,11 +2,15 @@
 decimation to a bounded face count.
 
 The Manifold method voxelizes the input in an octree, flood-fills from outside and extracts the
-outer envelope, so it closes holes and fuses intersecting parts (what Freestyle needs) at the cost
-of a slight inflation of about one octree cell; its output is dense, hence the decimation after.
+outer envelope, so it closes holes and fuses intersecting parts at the cost of an inflation of
+about one octree cell. ``pull_to_source`` then moves the envelope most of the way back onto the
+source surface, which lets a coarse (cheap) octree give a closer envelope than a fine one alone.
+A dense envelope is decimated after.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import point_cloud_utils as pcu
@@ -30,6 +34,57 @@ def make_watertight(
         seed=int(seed),
     )
     return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+
+
+# Vertices within PULL_FULL x the envelope's median offset are pulled fully; beyond PULL_NONE x
+# they stay: those are the caps Manifold puts over holes, and pulling a cap onto its hole's rim
+# would collapse it.
+PULL_FULL = 2.0
+PULL_NONE = 3.0
+# A face whose normal turns by more than ~78 degrees while pulling is folding over; its vertices
+# are pulled less (halved per round, then not at all).
+FOLD_COS = 0.2
+FOLD_ROUNDS = 8
+
+
+def pull_to_source(
+    env_vertices: np.ndarray, env_faces: np.ndarray, src_vertices: np.ndarray, src_faces: np.ndarray,
+    fraction: float,
+) -> np.ndarray:
+    """Envelope vertices moved ``fraction`` of the way to their closest point on the source.
+
+    Connectivity is unchanged, so the envelope stays closed. For a vertex outside the solid the
+    closest source point is always on the outer surface (any interior face lies behind it), so
+    the faces buried inside fused parts never attract it. ``fraction`` < 1 keeps the two sides of
+    a thin wall apart: at 1 they would meet on the wall (measured: no longer watertight).
+    """
+    if fraction <= 0.0:
+        return env_vertices
+    sf = np.ascontiguousarray(src_faces, dtype=np.int32)
+    sv = np.ascontiguousarray(src_vertices, dtype=np.float64)
+    dist, fid, bary = pcu.closest_points_on_mesh(np.ascontiguousarray(env_vertices, dtype=np.float64), sv, sf)
+    target = pcu.interpolate_barycentric_coords(sf, fid, bary, sv)
+    offset = float(np.median(dist))
+    if offset <= 0.0:
+        return env_vertices
+    weight = fraction * np.clip((PULL_NONE * offset - dist) / ((PULL_NONE - PULL_FULL) * offset), 0.0, 1.0)
+    step = target - env_vertices
+
+    def face_normals(v: np.ndarray) -> np.ndarray:
+        n = np.cross(v[env_faces[:, 1]] - v[env_faces[:, 0]], v[env_faces[:, 2]] - v[env_faces[:, 0]])
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+    before = face_normals(env_vertices)
+    for round_ in itertools.count():
+        pulled = env_vertices + weight[:, None] * step
+        folding = (before * face_normals(pulled)).sum(axis=1) <= FOLD_COS
+        if not folding.any():
+            return pulled
+        # Ends: a folding face has a vertex still moving (an unmoved face keeps its normal), and
+        # after FOLD_ROUNDS every such vertex is stopped.
+        touched = np.unique(env_faces[folding])
+        weight[touched] = weight[touched] * 0.5 if round_ < FOLD_ROUNDS else 0.0
+    raise AssertionError("unreachable")
 
 
 def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
