@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import point_cloud_utils as pcu
 import pytest
@@ -74,3 +76,22 @@ def test_fraction_zero_is_the_envelope_and_settings_bound_it():
     for bad in (1.0, -0.1):
         with pytest.raises(ValueError, match="pull_to_source"):
             PrepareSettings(pull_to_source=bad)
+
+
+def test_zero_area_envelope_face_does_not_stall_the_fold_guard():
+    src = _assembly()
+    v, f = make_watertight(src.vertices, src.faces, 1000, 0)
+    v = np.vstack([v, v[f[0, 0]], v[f[0, 0]]])  # a zero-area face on two extra copies of a vertex
+    f = np.vstack([f, [[f[0, 0], len(v) - 2, len(v) - 1]]])
+
+    def stalled(signum, frame):
+        raise TimeoutError("pull_to_source did not return: the fold guard kept flagging the zero-area face")
+
+    previous = signal.signal(signal.SIGALRM, stalled)
+    signal.alarm(30)
+    try:
+        pulled = pull_to_source(v, f, src.vertices, src.faces, 0.9)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert np.median(_distances(pulled, src)) < 0.2 * np.median(_distances(v, src))

@@ -75,9 +75,11 @@ def pull_to_source(
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
     before = face_normals(env_vertices)
+    # a zero-area envelope face has no normal to keep (and would never stop "folding")
+    has_normal = np.abs(before).sum(axis=1) > 0
     for round_ in itertools.count():
         pulled = env_vertices + weight[:, None] * step
-        folding = (before * face_normals(pulled)).sum(axis=1) <= FOLD_COS
+        folding = has_normal & ((before * face_normals(pulled)).sum(axis=1) <= FOLD_COS)
         if not folding.any():
             return pulled
         # Ends: a folding face has a vertex still moving (an unmoved face keeps its normal), and
