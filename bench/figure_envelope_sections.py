@@ -58,12 +58,12 @@ def main() -> int:
         old = make_watertight(v, f, 5000, 0)
         wv, wf = make_watertight(v, f, 2500, 0)
         new = (pull_to_source(wv, wf, v, f, 0.9), wf)
-        for (label, colour, width), (mv, mf) in zip(STYLES, [(v, f), old, new]):
-            seg = section_segments(mv, mf, axis, offset)
+        cuts = [section_segments(mv, mf, axis, offset) for mv, mf in [(v, f), old, new]]
+        for (label, colour, width), seg in zip(STYLES, cuts):
             for a, b in seg:
                 ax.plot([a[0], b[0]], [a[1], b[1]], color=colour, lw=width)
             ax.plot([], [], color=colour, lw=width, label=label)
-        centre = section_segments(v, f, axis, offset).reshape(-1, 2).mean(axis=0)
+        centre = cuts[0].reshape(-1, 2).mean(axis=0)  # the source's cut
         ax.set_xlim(centre[0] - half, centre[0] + half)
         ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_aspect("equal")

@@ -18,17 +18,16 @@ def _distances(points: np.ndarray, source: trimesh.Trimesh) -> np.ndarray:
                                       np.asarray(source.faces, dtype=np.int32))[0]
 
 
-def _normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
-def _assembly() -> trimesh.Trimesh:
+def _parts() -> list[trimesh.Trimesh]:
     # two overlapping boxes and a cylinder: a soup with buried faces, like the procedural models
     parts = [trimesh.creation.box((1.0, 0.3, 0.3)), trimesh.creation.box((0.2, 0.8, 0.1)),
              trimesh.creation.cylinder(0.08, 0.6, sections=24)]
     parts[2].apply_translation((0.35, 0.0, 0.2))
-    return trimesh.util.concatenate(parts)
+    return parts
+
+
+def _assembly() -> trimesh.Trimesh:
+    return trimesh.util.concatenate(_parts())
 
 
 def test_pull_brings_the_envelope_close_and_keeps_it_closed_and_unfolded():
@@ -38,10 +37,11 @@ def test_pull_brings_the_envelope_close_and_keeps_it_closed_and_unfolded():
     before, after = _distances(v, src), _distances(pulled, src)
     assert np.median(after) < 0.2 * np.median(before)
     assert trimesh.Trimesh(pulled, f, process=False).is_watertight
-    assert ((_normals(v, f) * _normals(pulled, f)).sum(axis=1) > 0.2).all()
-    # never into the solid: the closest source point of an outside vertex is on the outer surface
-    inside = trimesh.Trimesh(v, f, process=False).contains(pulled * 0.999)
-    assert inside.all()  # still within the unpulled envelope
+    turned = (trimesh.Trimesh(v, f, process=False).face_normals
+              * trimesh.Trimesh(pulled, f, process=False).face_normals).sum(axis=1)
+    assert (turned > 0.2).all()
+    # never into the solid: buried faces do not attract, the closest point is on the outer surface
+    assert not any(part.contains(pulled).any() for part in _parts())
 
 
 def test_thin_wall_keeps_two_sides():

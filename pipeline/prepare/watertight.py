@@ -10,8 +10,6 @@ A dense envelope is decimated after.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import point_cloud_utils as pcu
 import pymeshlab
@@ -77,16 +75,17 @@ def pull_to_source(
     before = face_normals(env_vertices)
     # a zero-area envelope face has no normal to keep (and would never stop "folding")
     has_normal = np.abs(before).sum(axis=1) > 0
-    for round_ in itertools.count():
+    # Ends: a folding face has a vertex still moving (an unmoved face keeps its normal), and
+    # after FOLD_ROUNDS halvings every such vertex is stopped.
+    rounds = 0
+    while True:
         pulled = env_vertices + weight[:, None] * step
         folding = has_normal & ((before * face_normals(pulled)).sum(axis=1) <= FOLD_COS)
         if not folding.any():
             return pulled
-        # Ends: a folding face has a vertex still moving (an unmoved face keeps its normal), and
-        # after FOLD_ROUNDS every such vertex is stopped.
         touched = np.unique(env_faces[folding])
-        weight[touched] = weight[touched] * 0.5 if round_ < FOLD_ROUNDS else 0.0
-    raise AssertionError("unreachable")
+        weight[touched] = weight[touched] * 0.5 if rounds < FOLD_ROUNDS else 0.0
+        rounds += 1
 
 
 def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
