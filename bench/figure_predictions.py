@@ -1,8 +1,10 @@
 """Figure: test sketch | prediction | ground truth, one row per test model.
 
 Usage: .venv/bin/python bench/figure_predictions.py --checkpoint RUN/best.pt --dataset DS --work-dir WORK
-       --out docs/images/quality_<category>.png [--rows 4]
-Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``).
+       --out docs/images/quality_<category>.png [--rows 4] [--blind]
+Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``). ``--blind`` adds
+the sketch-blind baseline of ``train evaluate`` (the mean network output over the train split) as a
+last column, so a reader sees what the drawing changed in each prediction.
 """
 
 from __future__ import annotations
@@ -21,17 +23,23 @@ from pipeline.sources.mesh_io import read_ply
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
-from train.data import read_png, sketch_table, to_network
+from train.data import DataSettings, make_loader, read_png, sketch_table, to_network
+from train.evaluate import mean_output
 from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
 from train.objective import Objective
 
 
 @torch.no_grad()
-def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256) -> np.ndarray:
+def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256, blind: bool = False) -> np.ndarray:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     objective = Objective(template, 500)
+    mean_patches = None
+    if blind:
+        train = make_loader(dataset, s.category, "train", DataSettings(eval_views=1, image_size=s.image_size), 0, 8,
+                            train=False)
+        mean_patches = template.patches_from_params(mean_output(model, train)[None])[0]
     urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
@@ -47,9 +55,12 @@ def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 
         big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
         images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]
         labels += [f"{meta['model_id']} sketch", "prediction", "ground truth"]
-        if len(images) >= 3 * rows:
+        if mean_patches is not None:  # the same parts kept as for the prediction
+            images.append(render_mesh(*welded_mesh(mean_patches[keep].double(), 12), size))
+            labels.append("sketch-blind mean")
+        if len(labels) >= (4 if blind else 3) * rows:
             break
-    return contact_sheet(images, labels, cols=3)
+    return contact_sheet(images, labels, cols=4 if blind else 3)
 
 
 def main() -> None:
@@ -59,8 +70,9 @@ def main() -> None:
     ap.add_argument("--work-dir", required=True)
     ap.add_argument("--out", required=True)
     ap.add_argument("--rows", type=int, default=4)
+    ap.add_argument("--blind", action="store_true", help="add the sketch-blind mean shape as a last column")
     a = ap.parse_args()
-    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows))
+    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows, blind=a.blind))
     print(a.out)
 
 
