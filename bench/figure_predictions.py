@@ -37,9 +37,9 @@ def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 
     objective = Objective(template, 500)
     mean_patches = None
     if blind:
-        train = make_loader(dataset, s.category, "train", DataSettings(eval_views=1, image_size=s.image_size), 0, 8,
-                            train=False)
-        mean_patches = template.patches_from_params(mean_output(model, train)[None])[0]
+        train_split = make_loader(dataset, s.category, "train", DataSettings(eval_views=1, image_size=s.image_size), 0, 8,
+                                  train=False)
+        mean_patches = template.patches_from_params(mean_output(model, train_split)[None])[0]
     urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
