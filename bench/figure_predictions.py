@@ -23,8 +23,8 @@ from pipeline.sources.mesh_io import read_ply
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
-from train.data import DataSettings, make_loader, read_png, sketch_table, to_network
-from train.evaluate import mean_output
+from train.data import DataSettings, read_png, sketch_table, to_network
+from train.evaluate import blind_output
 from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
 from train.objective import Objective
@@ -35,11 +35,11 @@ def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     objective = Objective(template, 500)
+    cols = 4 if blind else 3
     mean_patches = None
     if blind:
-        train_split = make_loader(dataset, s.category, "train", DataSettings(eval_views=1, image_size=s.image_size), 0, 8,
-                                  train=False)
-        mean_patches = template.patches_from_params(mean_output(model, train_split)[None])[0]
+        mean = blind_output(model, dataset, s.category, DataSettings(eval_views=1, image_size=s.image_size))
+        mean_patches = template.patches_from_params(mean[None])[0]
     urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
@@ -58,9 +58,9 @@ def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 
         if mean_patches is not None:  # the same parts kept as for the prediction
             images.append(render_mesh(*welded_mesh(mean_patches[keep].double(), 12), size))
             labels.append("sketch-blind mean")
-        if len(labels) >= (4 if blind else 3) * rows:
+        if len(labels) >= cols * rows:
             break
-    return contact_sheet(images, labels, cols=4 if blind else 3)
+    return contact_sheet(images, labels, cols=cols)
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from pipeline.prepare.settings import PrepareSettings
-from pipeline.prepare.watertight import make_watertight, pull_to_source
+from pipeline.prepare.watertight import FOLD_COS, make_watertight, pull_to_source
 
 
 def _distances(points: np.ndarray, source: trimesh.Trimesh) -> np.ndarray:
@@ -39,7 +39,7 @@ def test_pull_brings_the_envelope_close_and_keeps_it_closed_and_unfolded():
     assert trimesh.Trimesh(pulled, f, process=False).is_watertight
     turned = (trimesh.Trimesh(v, f, process=False).face_normals
               * trimesh.Trimesh(pulled, f, process=False).face_normals).sum(axis=1)
-    assert (turned > 0.2).all()
+    assert (turned > FOLD_COS).all()
     # never into the solid: buried faces do not attract, the closest point is on the outer surface
     assert not any(part.contains(pulled).any() for part in _parts())
 

@@ -75,6 +75,11 @@ def mean_output(model, loader) -> torch.Tensor:
     return (total / count).float()
 
 
+def blind_output(model, dataset: str | Path, category: str, data: DataSettings, batch_size: int = 8) -> torch.Tensor:
+    """The sketch-blind baseline ``(D,)``: the mean network output over the category's train split."""
+    return mean_output(model, make_loader(dataset, category, "train", data, 0, batch_size, train=False))
+
+
 @torch.no_grad()
 def evaluate(
     checkpoint: str | Path,
@@ -98,7 +103,7 @@ def evaluate(
     data = DataSettings(eval_views=views, n_points=s.n_points, image_size=s.image_size)
     cat = category or s.category
     loader = make_loader(dataset, cat, split, data, 0, batch_size, train=False)
-    blind = mean_output(model, make_loader(dataset, cat, "train", data, 0, batch_size, train=False))[None]
+    blind = blind_output(model, dataset, cat, data, batch_size)[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
     count = 0
     base = template.initial_params()[None]
