@@ -45,10 +45,8 @@ def luigid(tmp_path: Path):
     cfg = tmp_path / "scheduler.cfg"  # read after ./luigi.cfg, so it overrides the blender cap
     cfg.write_text("[resources]\nblender = 1\n")
     port = free_port()
-    (tmp_path / "luigid-log").mkdir()  # luigid logs into it but does not create it
-    proc = subprocess.Popen(
-        [str(BIN / "luigid"), "--address", "127.0.0.1", "--port", str(port),
-         "--logdir", str(tmp_path / "luigid-log"), "--state-path", str(tmp_path / "luigid-state.pickle")],
+    proc = subprocess.Popen(  # the documented launcher: 127.0.0.1, state in a private folder
+        [str(BIN / "python"), "-m", "workflows.scheduler", "--port", str(port), "--state-dir", str(tmp_path / "luigid")],
         cwd=ROOT, env=env_with(LUIGI_CONFIG_PATH=str(cfg)), stdout=subprocess.DEVNULL,
         stderr=open(tmp_path / "luigid.err", "wb"), start_new_session=True)
     try:
