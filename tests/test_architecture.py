@@ -26,12 +26,26 @@ LEVELS = {
     "workflows": 6,
 }
 TRAIN_MAY_IMPORT = ("pipeline.core", "pipeline.shapes", "train")
+# Inside train/, structures <- ops <- losses <- model <- commands: geometry knows no template,
+# templates no loss, losses no network; the commands sit on top.
+TRAIN_LEVELS = {
+    "train.errors": 0, "train.grid_nn": 0, "train.nn_search": 0, "train.resnet": 0, "train.augmentation": 0,
+    "train.distributed": 0, "train.plots": 0, "train.weight_average": 0, "train.sketch_input": 0,
+    "train.geometry": 1,
+    "train.export": 2,  # CAD files and mesh checks of patch arrays
+    "train.templates": 3,
+    "train.losses": 4,
+    "train.metrics": 5, "train.model": 5, "train.objective": 5, "train.data": 5,
+    "train.fit": 6,
+    "train.evaluate": 7, "train.predict": 7, "train.interpolate": 7,
+    "train.cli": 8, "train.__main__": 8, "train": 8,
+}
 PACKAGES = ("pipeline", "render", "augment", "train", "workflows")
 
 
-def level_of(module: str) -> int | None:
+def level_of(module: str, levels: dict[str, int] = LEVELS) -> int | None:
     best = None
-    for prefix, level in LEVELS.items():
+    for prefix, level in levels.items():
         if module == prefix or module.startswith(prefix + "."):
             if best is None or len(prefix) > len(best[0]):
                 best = (prefix, level)
@@ -72,6 +86,9 @@ def upward_imports(files: dict[str, Path] | None = None) -> list[str]:
             if me.startswith("train"):
                 if not target.startswith(TRAIN_MAY_IMPORT):
                     bad.append(where + " (train may import only the base layer)")
+                mine, theirs = level_of(me, TRAIN_LEVELS), level_of(target, TRAIN_LEVELS)
+                if target.startswith("train") and mine is not None and theirs is not None and theirs > mine:
+                    bad.append(where + f" (train level {mine} importing train level {theirs})")
                 continue
             mine, theirs = level_of(me), level_of(target)
             if target.startswith("train"):
@@ -86,6 +103,8 @@ def test_every_module_has_a_level():
                 if not module_name(p).startswith("train") and level_of(module_name(p)) is None
                 and module_name(p) != "pipeline"]
     assert unplaced == []
+    assert [module_name(p) for p in project_files()
+            if module_name(p).startswith("train") and level_of(module_name(p), TRAIN_LEVELS) is None] == []
 
 
 def test_imports_point_down_the_stage_order():
@@ -98,6 +117,9 @@ def test_the_check_sees_upward_imports(tmp_path):
     base.write_text("import numpy\ndef f():\n    from render.settings import RenderSettings\n")
     trainer = tmp_path / "trainer_probe.py"
     trainer.write_text("from augment.pencil import draw_pencil\nfrom pipeline.core.atomic import write_json\n")
-    bad = upward_imports({"pipeline.core.probe": base, "train.probe": trainer})
+    geometry = tmp_path / "geometry_probe.py"
+    geometry.write_text("from train.losses.collision import collision_loss\n")
+    bad = upward_imports({"pipeline.core.probe": base, "train.probe": trainer, "train.geometry.probe": geometry})
     assert bad == ["probe.py:3 imports render.settings (level 0 importing level 3)",
-                   "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)"]
+                   "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)",
+                   "geometry_probe.py:1 imports train.losses.collision (train level 1 importing train level 4)"]

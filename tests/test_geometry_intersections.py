@@ -15,7 +15,8 @@ from test_export_quadmesh import box_with_junctions, line  # noqa: E402
 from train.cli import main
 from train.export.quadmesh import quad_mesh
 from train.fit import FitSettings, save_checkpoint
-from train.geometry.intersections import candidate_pairs, mesh_intersections, patch_intersections
+from train.export.quadmesh import patch_intersections
+from train.geometry.intersections import candidate_pairs, mesh_intersections
 from train.model import SketchToPatches
 from train.templates import load_template
 

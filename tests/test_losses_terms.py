@@ -9,15 +9,14 @@ from train.losses import (
     LossWeights,
     chamfer_loss,
     collision_loss,
-    collision_pairs,
     flatness_loss,
     match_points,
     normal_alignment_loss,
     symmetry_loss,
     template_normal_loss,
     total_loss,
-    unconnected_pairs,
 )
+from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
 from train.geometry.intersections import count_intersecting_pairs
 from train.nn_search import nearest_distances
 from train.templates import sphere24, sphere54

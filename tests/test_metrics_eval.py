@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from train.geometry import patch_from_corners, sample_surface_uniform
-from train.losses import collision_pairs, unconnected_pairs
+from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
 from train.geometry.intersections import count_intersecting_pairs, triangles_intersect
 from train.metrics import chamfer_l2_x1000, chamfer_loss_style, fscore, normal_consistency
 from train.templates import sphere24, sphere54

@@ -3,6 +3,8 @@ shards, the patch mask in every loss term, and part groups in Chamfer / normal t
 
 from __future__ import annotations
 
+import dataclasses
+
 
 import luigi
 import numpy as np
@@ -18,6 +20,7 @@ from train.losses import Groups, chamfer_loss, match_points, normal_alignment_lo
 from train.losses.weights import template_weights
 from train.objective import Objective
 from train.templates import load_template
+from train.templates.template import TemplateError
 from workflows import BuildCategory
 
 N_MODELS = 9  # among them airplanes without engines (00008 at seed 0)
@@ -173,3 +176,11 @@ def test_fit_flags_take_match_normals_from_the_template_file() -> None:
     assert settings("--template", "bathtub", "--match-normals", "0").match_normals == 0.0
     air = settings("--template", "airplane", "--w-symmetry", "0.5")
     assert air.weights.symmetry == 0.5 and air.weights.template_normal == pytest.approx(1e-4)
+
+
+def test_unknown_or_negative_regularizer_is_a_clear_error() -> None:
+    with pytest.raises(ValueError, match=r"template regularizers \['chamfer'\]"):
+        template_weights({"chamfer": 1.0})  # a loss term, but not a regularizer
+    knife = load_template("knife")
+    with pytest.raises(TemplateError, match="regularizer 'symmetry': expected a weight >= 0"):
+        dataclasses.replace(knife, regularizers={"symmetry": -1.0})

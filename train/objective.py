@@ -16,7 +16,7 @@ from torch import Tensor
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.geometry.coons import evaluate_patches
 from train.losses.chamfer import Groups
-from train.losses.collision import collision_pairs
+from train.geometry.patch_pairs import collision_pairs
 from train.losses.total import loss_terms
 from train.losses.weights import LossWeights
 from train.templates import Template

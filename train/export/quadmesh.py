@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from train.export.curves import CurveGraph, curve_graph
 from train.geometry.coons import coons_points
+from train.geometry.intersections import Intersections, mesh_intersections
 
 
 @dataclasses.dataclass
@@ -142,3 +143,11 @@ def weld(points: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     new_id = np.empty(len(order), int)
     new_id[order] = np.arange(len(order))
     return points[first[order]], new_id[labels]
+
+
+def patch_intersections(patches: np.ndarray, alpha: float = 12.0) -> Intersections:
+    """Intersections of one shape's patches ``(P, 4, 4, 3)`` on their conforming quad mesh
+    (``alpha`` segments per unit arc length; coarser is faster and misses shallower crossings:
+    the clean verdict is the CAD kernel's, ``train.export.kernel_check``)."""
+    qm = quad_mesh(np.asarray(patches, dtype=np.float64), alpha=alpha)
+    return mesh_intersections(qm.vertices, qm.triangles(), np.repeat(qm.patch_of_face, 2))

@@ -8,7 +8,7 @@ inside a patch and patches passing through each other. Candidate pairs come from
 face centroids, so the cost grows with the number of nearby pairs, not with F².
 
 Use ``mesh_intersections`` on a mesh you already have (``predict``'s ``mesh.obj``) and
-``patch_intersections`` on raw patch control points ``(P, 4, 4, 3)`` (one shape).
+``train.export.quadmesh.patch_intersections`` on raw patch control points ``(P, 4, 4, 3)``.
 
 ``count_intersecting_pairs`` is the figure ``evaluate`` reports: on the loss's own truncated grid
 triangulation (pairs sharing a boundary leave out a band along it), independent of the collision
@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from train.geometry.triangulate import triangulate_patches
-from train.losses.collision import CollisionPairs, unconnected_pairs
+from train.geometry.patch_pairs import CollisionPairs, unconnected_pairs
 
 # face pairs tested per exact-test batch (keeps the (N, 3, 3) temporaries small)
 _BATCH = 200_000
@@ -103,15 +103,6 @@ def mesh_intersections(vertices: np.ndarray, faces: np.ndarray, patch_of_face: n
     patch_pairs = sorted({(int(min(a, b)), int(max(a, b))) for a, b in owner[across]})
     folded = sorted({int(a) for a in owner[~across, 0]})
     return Intersections(pairs, patch_pairs, folded)
-
-
-def patch_intersections(patches: np.ndarray, alpha: float = 12.0) -> Intersections:
-    """Intersections of one shape's patches ``(P, 4, 4, 3)`` on their conforming quad mesh
-    (``alpha`` segments per unit arc length; coarser is faster and misses shallower crossings)."""
-    from train.export.quadmesh import quad_mesh  # local: quadmesh pulls in the integer program
-
-    qm = quad_mesh(np.asarray(patches, dtype=np.float64), alpha=alpha)
-    return mesh_intersections(qm.vertices, qm.triangles(), np.repeat(qm.patch_of_face, 2))
 
 
 def _segments_hit_triangles(p0: np.ndarray, p1: np.ndarray, tri: np.ndarray, tol: float) -> np.ndarray:

@@ -16,8 +16,7 @@ import importlib
 _WHERE = {
     "Groups": "chamfer", "Matches": "chamfer", "chamfer_loss": "chamfer", "match_points": "chamfer",
     "normal_alignment_loss": "chamfer",
-    "CollisionPairs": "collision", "collision_loss": "collision", "collision_pairs": "collision",
-    "unconnected_pairs": "collision",
+    "collision_loss": "collision",
     "flatness_loss": "regularizers", "symmetry_loss": "regularizers", "template_normal_loss": "regularizers",
     "TERMS": "total", "loss_terms": "total", "total_loss": "total", "weighted_sum": "total",
     "LossWeights": "weights",

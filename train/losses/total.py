@@ -5,7 +5,7 @@ from __future__ import annotations
 from torch import Tensor
 
 from train.losses.chamfer import Groups
-from train.losses.collision import CollisionPairs
+from train.geometry.patch_pairs import CollisionPairs
 from train.losses.terms import LOSS_TERMS, TermInputs
 from train.losses.weights import LossWeights
 

@@ -25,6 +25,9 @@ def template_weights(regularizers: dict[str, float], overrides: dict[str, float]
     """The paper's weights with the regularizers a template file names (``Template.regularizers``;
     regularizer terms are off unless named), then ``overrides`` (command line)."""
     off = {t.name: 0.0 for t in _TABLE if t.regularizer}
+    bad = sorted(set(regularizers) - set(off))
+    if bad:
+        raise ValueError(f"template regularizers {bad}: expected some of {sorted(off)}")
     base = replace(LossWeights(), **{**off, **regularizers})
     names = {f.name for f in fields(LossWeights)}
     unknown = set(overrides or {}) - names

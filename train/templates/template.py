@@ -204,11 +204,10 @@ class Template:
             for name, ids in table.items():
                 if any(not 0 <= i < len(self.patches) for i in ids):
                     raise TemplateError(f"{kind} {name!r}: bad patch index")
-        from train.losses.terms import regularizer_names  # the loss term table says which terms are regularizers
-
-        for name in self.regularizers:
-            if name not in regularizer_names():
-                raise TemplateError(f"regularizer {name!r}: expected one of {regularizer_names()}")
+        # which names are regularizers is the loss table's to say (train.losses.weights.template_weights)
+        for name, weight in self.regularizers.items():
+            if not (isinstance(weight, (int, float)) and math.isfinite(weight) and weight >= 0):
+                raise TemplateError(f"regularizer {name!r}: expected a weight >= 0, got {weight!r}")
         if not (math.isfinite(self.match_normals) and self.match_normals >= 0):
             raise TemplateError(f"match_normals: expected a number >= 0, got {self.match_normals!r}")
         grouped = [lab for labels in self.part_groups.values() for lab in labels]
