@@ -1,12 +1,13 @@
 """The table of loss terms: one ``LossTerm`` entry per term of the training loss.
 
-An entry gives the term's name, the function computing it per batch item, its default weight
-(the paper's value for unit-sphere models), whether the trainer offers a ``--no-<name>``
-ablation flag, and whether it is a regularizer a template file switches on (off unless the
-template's ``regularizers`` name it). ``LossWeights``, the ``--w-<name>`` / ``--no-<name>``
-flags, ``loss_terms`` (and so ``Objective.terms``) and the training log's columns are all made
-from this table, so a new term is one entry in ``LOSS_TERMS``. Its function gets the batch as a
-``TermInputs`` and returns ``(B,)``, or None when its inputs are missing (reported as 0).
+An entry gives the term's name, the function computing it per batch item, whether the trainer
+offers a ``--no-<name>`` ablation flag, and whether it is a regularizer a template file switches
+on (off unless the template's ``regularizers`` name it). Its default weight is the field of the
+same name in ``train.losses.weights.LossWeights`` (a test keeps the two in step). The
+``--w-<name>`` / ``--no-<name>`` flags, ``loss_terms`` (and so ``Objective.terms``) and the
+training log's columns are made from this table, so a new term is one entry in ``LOSS_TERMS``
+and one field in ``LossWeights``. Its function gets the batch as a ``TermInputs`` and returns
+``(B,)``, or None when its inputs are missing (reported as 0).
 """
 
 from __future__ import annotations
@@ -62,7 +63,6 @@ class TermInputs:
 class LossTerm:
     name: str
     fn: Callable[[TermInputs], Tensor | None]
-    weight: float  # default weight
     ablation: bool = True  # the trainer offers --no-<name>
     regularizer: bool = False  # off unless the template file names it (Template.regularizers)
 
@@ -95,36 +95,14 @@ def _symmetry(x: TermInputs) -> Tensor | None:
     return symmetry_loss(x.control_points, x.symmetry_pairs, x.plane_x, x.symmetry_valid)
 
 
-LOSS_TERMS: list[LossTerm] = [
-    LossTerm("chamfer", _chamfer, 1.0, ablation=False),
-    LossTerm("normal", _normal, 0.008),
-    LossTerm("flat", _flat, 2.0),
-    # our L_coll is a penetration depth (docs/geometry.md), not the paper's indicator (1e-5)
-    LossTerm("collision", _collision, 1.0),
-    LossTerm("template_normal", _template_normal, 1e-4, regularizer=True),
-    LossTerm("symmetry", _symmetry, 1.0, regularizer=True),
-]
-
-_sealed = False  # set when LossWeights is built from the table; later entries could not reach it
-
-
-def register_term(term: LossTerm) -> LossTerm:
-    """Add a term to the table (for plugins and tests; the project's own terms are listed above).
-    Only before ``train.losses.weights`` is imported: ``LossWeights`` is made from the table then."""
-    if _sealed:
-        raise RuntimeError(f"loss term {term.name!r} registered after LossWeights was built; "
-                           "register terms before importing train.losses.weights")
-    if any(t.name == term.name for t in LOSS_TERMS):
-        raise ValueError(f"loss term {term.name!r} is already in the table")
-    LOSS_TERMS.append(term)
-    return term
-
-
-def seal() -> tuple[LossTerm, ...]:
-    """The table, fixed from now on (called once, by train.losses.weights)."""
-    global _sealed
-    _sealed = True
-    return tuple(LOSS_TERMS)
+LOSS_TERMS: tuple[LossTerm, ...] = (
+    LossTerm("chamfer", _chamfer, ablation=False),
+    LossTerm("normal", _normal),
+    LossTerm("flat", _flat),
+    LossTerm("collision", _collision),
+    LossTerm("template_normal", _template_normal, regularizer=True),
+    LossTerm("symmetry", _symmetry, regularizer=True),
+)
 
 
 def regularizer_names() -> tuple[str, ...]:

@@ -9,7 +9,7 @@ from train.geometry.patch_pairs import CollisionPairs
 from train.losses.terms import LOSS_TERMS, TermInputs
 from train.losses.weights import LossWeights
 
-TERMS = tuple(t.name for t in LOSS_TERMS)  # LossWeights has sealed the table
+TERMS = tuple(t.name for t in LOSS_TERMS)
 
 
 def weighted_sum(terms: dict[str, Tensor], weights: LossWeights) -> Tensor:

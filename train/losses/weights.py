@@ -1,18 +1,24 @@
-"""Loss weights, one field per entry of the term table (``train.losses.terms``) with its default;
-a weight of 0 switches a term off. Also the trainer's weight and ablation flags, from the same table."""
+"""Loss weights, one field per entry of the term table (``train.losses.terms``), in its order;
+a weight of 0 switches a term off. Also the trainer's weight and ablation flags, from the table."""
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import field, fields, make_dataclass, replace
+from dataclasses import dataclass, fields, replace
 
-from train.losses import terms
+from train.losses.terms import LOSS_TERMS as _TABLE
 
-_TABLE = terms.seal()
 
-LossWeights = make_dataclass("LossWeights", [(t.name, float, field(default=t.weight)) for t in _TABLE], frozen=True)
-LossWeights.__module__ = __name__  # pickles and prints as train.losses.weights.LossWeights
-LossWeights.__doc__ = "Weight of each loss term (defaults: the paper's values for unit-sphere models)."
+@dataclass(frozen=True)
+class LossWeights:
+    """Weight of each loss term (defaults: the paper's values for unit-sphere models)."""
+
+    chamfer: float = 1.0
+    normal: float = 0.008
+    flat: float = 2.0
+    collision: float = 1.0  # our L_coll is a penetration depth (docs/geometry.md), not the paper's indicator (1e-5)
+    template_normal: float = 1e-4
+    symmetry: float = 1.0
 
 
 def only_term(name: str, weights: LossWeights | None = None) -> LossWeights:
@@ -41,7 +47,7 @@ def add_weight_flags(p: argparse.ArgumentParser) -> None:
     regs = " and ".join(t.name for t in _TABLE if t.regularizer)
     for t in _TABLE:
         p.add_argument(f"--w-{t.name.replace('_', '-')}", type=float, default=None,
-                       help=f"loss weight (paper: {t.weight}; {regs} default to the template file's)")
+                       help=f"loss weight (paper: {getattr(LossWeights(), t.name)}; {regs} default to the template file's)")
     for t in _TABLE:
         if t.ablation:
             p.add_argument(f"--no-{t.name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {t.name} = 0")
