@@ -25,9 +25,12 @@ def _verify(args: argparse.Namespace) -> int:
 def _preview(args: argparse.Namespace) -> int:
     from pipeline.sheets.dataset import write_previews
 
-    for path in write_previews(Path(args.dataset_dir), Path(args.out), args.max_models, args.categories):
+    refused: list[str] = []
+    for path in write_previews(Path(args.dataset_dir), Path(args.out), args.max_models, args.categories, refused):
         print(path)
-    return 0
+    for line in refused:  # a manifest naming paths outside the dataset: nothing written for it
+        print(f"REFUSED {line}", file=sys.stderr)
+    return 1 if refused else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     v.set_defaults(func=_verify)
     p = sub.add_parser("preview", help="write a contact-sheet PNG per category from the shards")
     p.add_argument("dataset_dir")
-    p.add_argument("--out", required=True, help="folder for <category>.png")
+    p.add_argument("--out", required=True, help="folder for <category>.png (odd names: a safe slug + hash)")
     p.add_argument("--max-models", type=int, default=16, help="rows (models) per sheet")
     p.add_argument("--categories", nargs="*", default=None, help="only these categories")
     p.set_defaults(func=_preview)

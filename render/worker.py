@@ -14,7 +14,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import sys
+import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -134,8 +136,9 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
         if scene is None:
             gray, strokes = lines.draw(view)
         else:
-            gray, strokes = _freestyle_view(scene, recorder, view, settings,
-                                            scratch / f"{category}_{model_id}_{i:02d}.png")
+            # a fixed name: Blender reads '#', '{…}' and '\\' in an output path, and the
+            # folder holds one model's views at a time
+            gray, strokes = _freestyle_view(scene, recorder, view, settings, scratch / view_name(i))
         write_bytes(out / view_name(i), encode_png(gray))
         strokes_per_view.append(strokes)
         view_times.append(round(time.perf_counter() - t, 4))
@@ -152,14 +155,43 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
     )
 
 
+# Characters Blender replaces in an output path: '#' (frame number), '{…}' (path templates),
+# '\\' (read as a folder separator).
+BLENDER_PATH_SPECIAL = "#{}\\"
+
+
+@contextlib.contextmanager
+def blender_scratch(preferred: Path) -> Iterator[Path]:
+    """The folder Blender renders into: ``preferred`` when its path has none of
+    BLENDER_PATH_SPECIAL (the work folder's name is the user's), else a private temporary
+    folder, removed afterwards."""
+    if not any(c in str(preferred.resolve()) for c in BLENDER_PATH_SPECIAL):
+        preferred.mkdir(parents=True, exist_ok=True)
+        yield preferred
+        return
+    tmp = Path(tempfile.mkdtemp(prefix="sketch2patch-render-"))
+    if any(c in str(tmp) for c in BLENDER_PATH_SPECIAL):
+        tmp.rmdir()
+        # the machine's setup, not a model's: fatal for the batch (an OSError), with the reason
+        raise NotADirectoryError(f"no folder Blender can render into: {preferred} and {tmp} "
+                                 f"both hold one of {BLENDER_PATH_SPECIAL!r}")
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def run_job(job_path: Path) -> int:
-    t0 = time.perf_counter()
     job = read_job(job_path)
+    with blender_scratch(Path(job["scratch_dir"])) as scratch:
+        return _run_job(job, scratch)
+
+
+def _run_job(job: dict, scratch: Path) -> int:
+    t0 = time.perf_counter()
     settings: RenderSettings = job["settings"]
     category, seed = job["category"], job["seed"]
     stage_dir = Path(job["stage_dir"])
-    scratch = Path(job["scratch_dir"])
-    scratch.mkdir(parents=True, exist_ok=True)
 
     scene = recorder = None
     if settings.backend == "freestyle":

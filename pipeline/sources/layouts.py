@@ -11,6 +11,7 @@ at ``limit``; no mesh is opened here, so a 13k-model ShapeNet tree lists in well
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import re
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
+from pipeline.core.names import is_safe_component, safe_component
 from pipeline.core.stage_keys import stage_key
 from pipeline.core.records import ModelRef
 from pipeline.sources.mesh_io import mesh_extensions
@@ -106,6 +108,34 @@ def _subdirs(source: str) -> list[str]:
     return [e.name for e in _sorted_entries(Path(source)) if e.is_dir()]
 
 
+# Category names become folder names in every stage and in the dataset folder, next to
+# manifest.json and the bookkeeping folders ("_runs", "_lists"): none may start with "_" or ".".
+CATEGORY_LEADING = "_."
+
+
+def safe_category(folder_name: str) -> str:
+    """The category a source folder is built as: its own name when that is a safe folder name
+    (pipeline.core.names), else a slug plus a hash of it (``manifest.json`` → ``manifest_json-…``)."""
+    return safe_component(folder_name, leading=CATEGORY_LEADING)
+
+
+def model_id_of(file_name: str) -> str:
+    """A model's id from its file or folder name: the name without its last extension when that
+    is a safe file name, else a slug plus a hash of it (a 250-character or unicode name, a
+    backslash or braces); the original name stays in the model's source path (meta.json)."""
+    return safe_component(Path(file_name).stem)
+
+
+def _folder_categories(source: str) -> dict[str, str]:
+    """{category: folder name} of a folder source (hidden folders skipped); a folder whose safe
+    name another folder already has is left out (only names made up to collide do that)."""
+    out: dict[str, str] = {}
+    for d in _subdirs(source):
+        if not d.startswith("."):
+            out.setdefault(safe_category(d), d)
+    return dict(sorted(out.items()))
+
+
 def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
     """ShapeNet Core v2 models of one category (name or synset id), in model-id order."""
     known = {**SHAPENET_SYNSETS, **EXTRA_SYNSETS}
@@ -117,7 +147,7 @@ def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
     if not folder.is_dir():
         return
     # The path is reported even when the file is missing: prepare records that failure.
-    yield from unique_ids(ModelRef(name, e.name, Path(e.path) / SHAPENET_MODEL_FILE, "shapenet")
+    yield from unique_ids(ModelRef(name, safe_component(e.name), Path(e.path) / SHAPENET_MODEL_FILE, "shapenet")
                           for e in _sorted_entries(folder) if e.is_dir() and not e.name.startswith("."))
 
 
@@ -143,22 +173,24 @@ def unique_ids(refs: Iterable[ModelRef]) -> Iterator[ModelRef]:
 
 
 def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
-    """Mesh files directly in ``<root>/<category>/``, id = file name without its last extension.
+    """Mesh files directly in the folder of ``category`` (``<root>/<category>/``, or the folder
+    whose ``safe_category`` it is), id = ``model_id_of(file name)``.
 
     The id depends on the file's own name only, so adding or removing other files never renames
     a model; two files that would get the same sample key raise ModelIdClash naming both.
     Every entry named like a mesh is listed, even one that is not a readable file (a directory,
     a FIFO, a broken link): prepare then records why it can't be read instead of skipping it.
     """
-    folder = root / category
-    if not folder.is_dir():
+    name = _folder_categories(str(root)).get(category) if root.is_dir() else None
+    if name is None:
         return
+    folder = root / name
     extensions = mesh_extensions()
     files = [
         e for e in _sorted_entries(folder)
         if not e.name.startswith(".") and Path(e.name).suffix.lower() in extensions
     ]
-    yield from unique_ids(ModelRef(category, Path(e.name).stem, Path(e.path), "folder") for e in files)
+    yield from unique_ids(ModelRef(category, model_id_of(e.name), Path(e.path), "folder") for e in files)
 
 
 def procedural_source_dir(work_dir: Path, seed: int) -> Path:
@@ -195,8 +227,11 @@ def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Ite
 
 def iter_models(source: str, category: str, seed: int = 0, work_dir: Path | None = None,
                 count: int | None = None) -> Iterator[ModelRef]:
-    """Stream the models of one category of a source, in deterministic order."""
-    return layout_of(source).models(str(source), category, seed, work_dir, count)
+    """Stream the models of one category of a source, in deterministic order. Every model id is
+    a safe file name (``safe_component``) whatever layout made it: ids name work folders."""
+    for ref in layout_of(source).models(str(source), category, seed, work_dir, count):
+        safe = ref.model_id if is_safe_component(ref.model_id) else safe_component(ref.model_id)
+        yield ref if safe == ref.model_id else dataclasses.replace(ref, model_id=safe)
 
 
 def list_models(source: str, category: str, limit: int | None, seed: int, work_dir: Path) -> list[ModelRef]:
@@ -229,6 +264,6 @@ register_layout(Layout(
     also_accepts=lambda source: set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values())))
 register_layout(Layout(
     "folder", detect=lambda source: Path(source).is_dir(),
-    categories=lambda source: [d for d in _subdirs(source) if not d.startswith(".")],
+    categories=lambda source: list(_folder_categories(source)),
     models=lambda source, category, seed, work_dir, count: iter_folder(Path(source), category),
     catch_all=True))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import os
 import re
 import stat
@@ -183,6 +184,68 @@ def _check_ply(path: Path, head: bytes, size: int, found: str | None) -> None:
 def _check_glb(path: Path, head: bytes, size: int, found: str | None) -> None:
     if found == "glb" and size >= 12 and size < (declared := int.from_bytes(head[8:12], "little")):
         raise ModelError(path, f"truncated: GLB header declares {declared} bytes but the file has {size}")
+    _check_gltf_files(path)
+
+
+# ---------------------------------------------------------------- glTF external files
+
+def _gltf_json(path: Path) -> dict | None:
+    """The JSON of a .gltf, or of a .glb's first (JSON) chunk; None when it is not readable as such."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+            if head[:4] == b"glTF" and len(head) == 20 and head[16:20] == b"JSON":
+                data = f.read(int.from_bytes(head[12:16], "little"))
+            elif path.suffix.lower() == ".gltf":
+                data = head + f.read()
+            else:
+                return None
+        doc = json.loads(data.decode("utf-8-sig"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def _resolve_like_trimesh(folder: Path, uri: str) -> Path | None:
+    """The file trimesh's FilePathResolver reads for ``uri`` (same candidates, in its order,
+    none outside the glTF's folder), or None when it would find none."""
+    base = folder.resolve()
+    for candidate in (uri.strip(), uri.strip().lstrip("/"), os.path.split(uri)[-1]):
+        if not candidate:
+            continue
+        full = (base / candidate).resolve()
+        if full.is_relative_to(base) and full.exists():
+            return full
+    return None
+
+
+def gltf_external_files(path: str | Path) -> list[tuple[str, str, Path | None]]:
+    """(kind, uri, file or None when missing) of every buffer and image a glTF/GLB reads from
+    outside itself, in file order; [] for embedded data, other formats and unparsable files.
+    These bytes are part of the model: the listing hashes them into its content key."""
+    path = Path(path)
+    if path.suffix.lower() not in (".gltf", ".glb"):
+        return []
+    doc = _gltf_json(path)
+    if doc is None:
+        return []
+    out = []
+    for kind in ("buffers", "images"):
+        entries = doc.get(kind)
+        for entry in entries if isinstance(entries, list) else []:
+            uri = entry.get("uri") if isinstance(entry, dict) else None
+            if isinstance(uri, str) and "base64," not in uri:  # trimesh decodes those inline
+                out.append((kind, uri, _resolve_like_trimesh(path.parent, uri)))
+    return out
+
+
+def _check_gltf_files(path: Path) -> None:
+    """A missing buffer is this model's failure, named, before trimesh's bare FileNotFoundError.
+    (A missing image is not: trimesh loads the geometry without its texture.)"""
+    for kind, uri, found in gltf_external_files(path):
+        if kind == "buffers" and found is None:
+            raise ModelError(path, f"missing glTF buffer {uri!r}: no such file in {path.parent.name!r} "
+                                   "(external files must lie in the glTF's own folder)")
 
 
 def _read_all(path: Path) -> bytes:
@@ -288,16 +351,28 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
     return vertices, faces
 
 
+def _utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:  # undecodable bytes of a file name, read as surrogates
+        return False
+    return True
+
+
 def _trimesh_load(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
     """Any format trimesh reads: force="mesh" flattens scenes (GLB, multi-object OBJ) applying
     node transforms; process=False keeps the file's vertices untouched (watertighting repairs
     them anyway)."""
     import trimesh  # imported on use: see read_ply
 
-    if head.startswith(_BOM):  # a UTF-8 byte order mark (Windows editors) would hide the first line from the parser
-        loaded = trimesh.load(io.BytesIO(_read_all(path)[len(_BOM):]), file_type=path.suffix.lower()[1:],
+    # From bytes when a UTF-8 byte order mark (Windows editors) would hide the first line from
+    # the parser, or when the file name is not UTF-8 (trimesh names the geometry after it).
+    if head.startswith(_BOM) or not _utf8(str(path)):
+        data = _read_all(path)
+        loaded = trimesh.load(io.BytesIO(data[len(_BOM):] if data.startswith(_BOM) else data),
+                              file_type=path.suffix.lower()[1:],
                               force="mesh", process=False,
-                              resolver=trimesh.resolvers.FilePathResolver(str(path)))
+                              resolver=trimesh.resolvers.FilePathResolver(str(path.parent)))
     else:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     if not isinstance(loaded, trimesh.Trimesh):
