@@ -37,7 +37,7 @@ TRAIN_LEVELS = {
     "train.losses": 4,
     "train.metrics": 5, "train.model": 5, "train.objective": 5, "train.data": 5,
     "train.fit": 6,
-    "train.evaluate": 7, "train.predict": 7, "train.interpolate": 7,
+    "train.evaluate": 7, "train.predict": 7, "train.interpolate": 7, "train.recipes": 7,
     "train.cli": 8, "train.__main__": 8, "train": 8,
 }
 PACKAGES = ("pipeline", "render", "augment", "train", "workflows")

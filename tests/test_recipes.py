@@ -1,0 +1,33 @@
+"""Named recipes are complete FitSettings reproducing the quality table's rows."""
+
+from __future__ import annotations
+
+import pytest
+
+from train.fit import FitSettings
+from train.recipes import RECIPES, recipe
+
+CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
+
+
+def test_every_category_has_a_recipe() -> None:
+    assert RECIPES == CATEGORIES
+    for name in RECIPES:
+        s = recipe(name, "data/x", "runs/x")
+        assert isinstance(s, FitSettings) and s.category == name and s.template == name
+        assert s.encoder_width == 32 and s.n_points == 4000 and s.val_every == 100 and s.max_views == 1
+
+
+def test_recipes_hold_their_rows_settings() -> None:
+    knife = recipe("knife")
+    assert (knife.contrast, knife.lr_schedule, knife.steps, knife.lr) == (1.0, "cosine", 5900, 1e-4)
+    assert knife.weights.template_normal == pytest.approx(1e-4)  # from the template file
+    plane = recipe("airplane")
+    assert (plane.lr, plane.ema, plane.lr_schedule, plane.weights.collision) == (3e-5, 0.999, "constant", 3.0)
+    assert plane.weights.symmetry == 1.0  # the template's regularizer, kept under the recipe's weights
+    assert recipe("bathtub").match_normals == pytest.approx(0.1) and recipe("mug").contrast == 0.1
+
+
+def test_unknown_recipe_names_the_choices() -> None:
+    with pytest.raises(ValueError, match="unknown recipe 'chair': expected one of airplane, bathtub"):
+        recipe("chair")

@@ -1,0 +1,49 @@
+"""Named training recipes: complete ``FitSettings`` for a category, measured in the quality table.
+
+``python -m train fit --recipe knife --dataset DS --out RUN`` starts from the recipe and any flag
+given on the command line overrides its field. Each recipe is the row of BENCHMARKS.md's quality
+table for that category (1,000 procedural models, ~30 minutes on one CPU core, width-32 encoder):
+what reproduces the row, not a guess at what is best elsewhere. Loss weights are the template
+file's regularizers with the recipe's own weights on top (the recipe wins), so a rebuilt template
+does not silently change a recipe.
+"""
+
+from __future__ import annotations
+
+from train.fit import FitSettings
+from train.losses.weights import template_weights
+from train.templates import load_template
+
+# What every quality-table run shares (BENCHMARKS.md "Quality per category").
+_SHARED = dict(lr=1e-4, max_views=1, workers=1, n_points=4000, val_every=100, encoder_width=32)
+_COSINE = dict(lr_schedule="cosine")
+
+# category -> (fields on top of _SHARED, loss weights on top of the template's, what it is)
+_RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
+    "airplane": (dict(lr=3e-5, ema=0.999, contrast=1.0, steps=8000), {"collision": 3.0},
+                 "constant 3e-5, collision weight 3, weight average 0.999"),
+    "bathtub": (dict(contrast=0.1, steps=5000, **_COSINE), {}, "contrast 0.1, cosine decay"),
+    "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "guitar": (dict(contrast=0.1, steps=5900, **_COSINE), {}, "contrast 0.1, cosine decay"),
+    "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "knife": (dict(contrast=1.0, steps=5900, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "mug": (dict(contrast=0.1, steps=4900, **_COSINE), {}, "contrast 0.1, cosine decay"),
+}
+RECIPES: tuple[str, ...] = tuple(sorted(_RECIPES))
+
+
+def describe(name: str) -> str:
+    """One line for ``--help``."""
+    return _RECIPES[name][2]
+
+
+def recipe(name: str, dataset: str = "", out: str = "") -> FitSettings:
+    """The complete settings of recipe ``name`` (a category), for ``dataset`` and ``out``."""
+    if name not in _RECIPES:
+        raise ValueError(f"unknown recipe {name!r}: expected one of {', '.join(RECIPES)}")
+    fields, weights, _ = _RECIPES[name]
+    tpl = load_template(name)
+    return FitSettings(dataset=dataset, category=name, template=name, out=out, **{**_SHARED, **fields},
+                       match_normals=tpl.match_normals, weights=template_weights(tpl.regularizers, weights))
+
