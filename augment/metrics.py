@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from skimage.morphology import skeletonize
 
 _SHIFT = 4  # cv2 sub-pixel bits
 
@@ -52,8 +51,3 @@ def stroke_scores(pred: list[np.ndarray], ref: list[np.ndarray], size: int | tup
     out["n_pred"], out["n_ref"] = len(pred), len(ref)
     out["count_ratio"] = len(pred) / len(ref) if ref else float("inf") if pred else 1.0
     return out
-
-
-def raster_scores(pred: list[np.ndarray], ink: np.ndarray, tol: float = 2.0) -> dict:
-    """Scores of vector strokes against the thinned ink of the raster they came from."""
-    return ink_scores(rasterize_thin(pred, ink.shape), skeletonize(ink), tol)

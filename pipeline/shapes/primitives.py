@@ -170,10 +170,6 @@ def airfoil(chord: float, thickness: float, k: int = 24) -> np.ndarray:
     return np.concatenate([upper, lower])
 
 
-def mirror_x(mesh: Mesh) -> Mesh:
-    """Reflect across x = 0 (faces reversed so the mirror stays outward-oriented)."""
-    v, f = mesh
-    return v * np.array([-1.0, 1.0, 1.0]), f[:, ::-1].copy()
 
 
 def transform(mesh: Mesh, rotation: np.ndarray | None = None, translation=(0, 0, 0)) -> Mesh:
@@ -189,15 +185,3 @@ def rot_x(deg: float) -> np.ndarray:
     a = np.radians(deg)
     c, s = np.cos(a), np.sin(a)
     return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def rot_y(deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def rot_z(deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
