@@ -1,5 +1,6 @@
 """A Blender batch that hangs is killed at its timeout, retried per [RenderBatch] crash_retries,
-then its models are recorded failed with the cause; the build itself completes."""
+then its models are recorded failed with the cause; the dataset is written, and the build fails
+because nothing was built."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ PARAMS = dict(category="mug", models_per_category=2, batch_size=2, views=1, vari
 
 def test_hung_render_batch_is_retried_then_recorded(tmp_path: Path) -> None:
     task = BuildCategory(work_dir=str(tmp_path / "work"), dataset_dir=str(tmp_path / "ds"), **PARAMS)
-    assert luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")
+    assert not luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")  # nothing built
     s = BuildSettings(models_per_category=2, batch_size=2, views=1, variants=1, image_size=64, out_size=64,
                       render_overrides=HANG, work_dir=tmp_path / "work", dataset_dir=tmp_path / "ds")
     doc = json.loads(batch_path(s, "render", current_listing(s, "mug"), 0).read_text())

@@ -100,8 +100,8 @@ def test_progress_line_rates_and_eta() -> None:
 
 
 def test_failures_are_loud_on_the_luigi_command(tmp_path: Path) -> None:
-    """Only broken meshes (no Blender needed): the summary names each failure, no ':)', and
-    --max-failed-fraction turns the build into a failure."""
+    """Only broken meshes (no Blender needed): the summary names each failure, no ':)', the
+    build fails (nothing built), and --max-failed-fraction names the share."""
     src = tmp_path / "src" / "mug"
     src.mkdir(parents=True)
     (src / "cut.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
@@ -111,7 +111,7 @@ def test_failures_are_loud_on_the_luigi_command(tmp_path: Path) -> None:
            "--dataset-dir", str(tmp_path / "ds")]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     out = r.stdout + r.stderr
-    assert r.returncode == 0, out
+    assert r.returncode == 30, out  # a category with no model built fails the build
     assert ":)" not in out and "INFO" not in out
     assert "failed mug/cut at prepare: unreadable: face indices out of range" in out
     assert "failed mug/empty at prepare: empty mesh: file has 0 bytes" in out
@@ -176,9 +176,11 @@ def test_changed_build_equals_clean_build_and_rerun_repairs(changed: dict, tmp_p
     with open(mug[0], "r+b") as f:
         f.truncate(4096)  # truncated
     (ds / "knife" / "train-00000.tar").unlink()  # missing
-    (ds / "mug" / "test-00003.tar").write_bytes(b"stray")  # not listed
+    (ds / "mug" / "test-00003.tar").write_bytes(b"stray")  # not listed: not the build's to delete
     (ds / "manifest.json").write_text((ds / "manifest.json").read_text().replace('"format": 1', '"format": 9'))
     assert len(verify_dataset(ds)) >= 3
+    assert not run_build(src, root) and (ds / "mug" / "test-00003.tar").read_bytes() == b"stray"
+    (ds / "mug" / "test-00003.tar").unlink()  # the user moves it away
     assert run_build(src, root)
     assert tree(ds) == clean
     # same-size edit: found by the default check when newer than category.json ...

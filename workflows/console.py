@@ -16,6 +16,7 @@ import atexit
 import logging
 import logging.handlers
 import sys
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -33,7 +34,18 @@ from workflows.validate import BuildParameterError
 LOG_NAME = "luigi.log"
 STAGES = ("prepare", "render", "augment")
 FIRST_FAILURES = 5
-_LUIGI_LOGGERS = ("luigi", "luigi-interface", "luigi.scheduler")
+WIDTH = 100  # failure lines are wrapped at this width, never cut
+# Exit code of the `luigi` command when Luigi's pid lock turns it away ([retcode] already_running
+# must stay 0, see luigi.cfg): nothing was built, so it is not a success.
+LOCK_REFUSED_EXIT = 45
+# "py.warnings": library warnings (e.g. numpy's RuntimeWarning inside trimesh) are log lines
+_LUIGI_LOGGERS = ("luigi", "luigi-interface", "luigi.scheduler", "py.warnings")
+
+
+def wrap(text: str, indent: str = "    ") -> str:
+    """``text`` wrapped at WIDTH on spaces only (paths and words stay whole), continuation lines
+    indented: a long reason is shown in full."""
+    return textwrap.fill(text, WIDTH, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
 def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int, int]]:
@@ -110,6 +122,7 @@ class Console:
         from luigi.setup_logging import InterfaceLogging
 
         InterfaceLogging._configured = True  # Luigi must not add its own stderr handler
+        logging.captureWarnings(True)  # warnings.warn(...) -> the "py.warnings" logger -> luigi.log
         for name in _LUIGI_LOGGERS:
             lg = logging.getLogger(name)
             lg.setLevel(logging.INFO)
@@ -120,6 +133,7 @@ class Console:
             luigi.Task.event_handler(event)(con._seen)  # the root is the first task they name
         luigi.Task.event_handler(luigi.Event.FAILURE)(con._failed)
         atexit.register(con._unclaimed)
+        _refuse_loudly(con)
         return con
 
     def _unclaimed(self) -> None:
@@ -179,7 +193,7 @@ class Console:
         where = getattr(task, "category", None) or ""
         line = f"FAILED {task.get_task_family()}{f' {where}' if where else ''}: {type(exc).__name__}: {exc}"
         self.failures.append(line)
-        self.write(line[:400], final=True)
+        self.write(wrap(line), final=True)
 
     def finish(self) -> bool:
         """Stop the progress line, print the summary; True if the build is complete and clean."""
@@ -200,6 +214,27 @@ class Console:
             self.write(f"BUILD FAILED: see the FAILED lines above and {self.log_path}", final=True)
         self.root = None
         return complete
+
+
+def _refuse_loudly(con: Console) -> None:
+    """Luigi's pid lock (the `luigi` command without --no-lock) prints "Pid(s) {...} already
+    running" and exits with [retcode] already_running, 0 here; say what happened and exit
+    LOCK_REFUSED_EXIT instead. luigi.interface looks the function up on each call."""
+    import luigi.lock
+
+    acquire = luigi.lock.acquire_for
+
+    def acquire_for(pid_dir: str, num_available: int = 1, kill_signal=None) -> bool:
+        if acquire(pid_dir, num_available, kill_signal):
+            return True
+        line = ("error: not started: the same build command is already running on this machine (pid above, "
+                "Luigi's lock); nothing was built. Wait for it to finish, or add --no-lock to start a second "
+                "worker of a build shared through a central scheduler")
+        con.failures.append(line)
+        con.write(wrap(line), final=True)
+        raise SystemExit(LOCK_REFUSED_EXIT)
+
+    luigi.lock.acquire_for = acquire_for
 
 
 class _ErrorLine(logging.Handler):
@@ -244,7 +279,7 @@ def summary(s: BuildSettings, categories: list[str]) -> str:
     for name in categories:
         c = m["categories"].get(name) or {"failed": []}
         for f in c["failed"][:FIRST_FAILURES]:
-            lines.append(f"  failed {name}/{f['model_id']} at {f['stage']}: {f['reason'][:160]}")
+            lines.append(wrap(f"  failed {name}/{f['model_id']} at {f['stage']}: {f['reason']}", "      "))
         if len(c["failed"]) > FIRST_FAILURES:
             lines.append(f"  ... and {len(c['failed']) - FIRST_FAILURES} more failures of {name} (category.json)")
     lines.append(f"manifest: {(ds / MANIFEST).resolve()} (checksum {m['checksum'][:16]})")

@@ -13,20 +13,20 @@ step sees every failure of the category with its reason.
 from __future__ import annotations
 
 import os
-import shutil
 import socket
+import stat
 import time
 from pathlib import Path
 
 from pipeline.core.atomic import read_json, storage_error, write_json
 from pipeline.build.settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
-from pipeline.build.listing import model_ref
+from pipeline.build.listing import duplicate_outcome, model_ref
 from pipeline.core.records import Progress, model_dir
 from pipeline.core.schema import FRAGMENT
 from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
-from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, write_category_shards
+from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, retire_category, write_category_shards
 
 BATCHES = "_batches"
 RUNS = "_runs"
@@ -99,10 +99,12 @@ def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     from pipeline.prepare.batch import prepare_batch
 
     models = batch_models(s, lst, batch)
-    records = prepare_batch([model_ref(lst["category"], m) for m in models], s.stage_dir("prepare"),
-                            s.prepare_settings(), progress)
+    copies = {m["work_id"]: duplicate_outcome(m) for m in models if duplicate_outcome(m)}  # failed, never built
+    todo = [m for m in models if m["work_id"] not in copies]
+    records = iter(prepare_batch([model_ref(lst["category"], m) for m in todo], s.stage_dir("prepare"),
+                                 s.prepare_settings(), progress))
     return _write_batch(s, "prepare", lst, batch,
-                        [_outcome(m, "prepare", rec) for m, rec in zip(models, records)], t0)
+                        [copies.get(m["work_id"]) or _outcome(m, "prepare", next(records)) for m in models], t0)
 
 
 def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None,
@@ -181,10 +183,6 @@ def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
         write_fragment(Path(s.dataset_dir) / category, holder["fragment"])
 
     cat_dir = Path(s.dataset_dir) / category
-    # A run killed while packing leaves its staging folder behind; only this task (one per
-    # category at a time, Luigi guarantees) writes here, so stale ones can go.
-    for stale in cat_dir.glob(".staging-*"):
-        shutil.rmtree(stale, ignore_errors=True)
     try:
         result = write_category_shards(category, dirs, cat_dir, s.shard_settings(),
                                        s.seed, s.shards_key(), s.portable_path, before_cleanup=fragment)
@@ -259,7 +257,9 @@ def category_problems(s: BuildSettings, lst: dict, checksums: bool = False) -> l
             except OSError:
                 problems.append(f"{sh['name']} missing")
                 continue
-            if st.st_size != sh["bytes"]:
+            if stat.S_ISDIR(st.st_mode):
+                problems.append(f"{sh['name']} is a folder")
+            elif st.st_size != sh["bytes"]:
                 problems.append(f"{sh['name']} has {st.st_size} bytes, category.json says {sh['bytes']}")
             elif (checksums or st.st_mtime_ns > frag_mtime) and file_sha256(path) != sh["sha256"]:
                 problems.append(f"{sh['name']} sha256 differs from category.json")
@@ -268,8 +268,9 @@ def category_problems(s: BuildSettings, lst: dict, checksums: bool = False) -> l
 
 
 def manifest_is_current(s: BuildSettings, listings: list[dict], checksums: bool = False) -> bool:
-    """Are these categories current and manifest.json exactly the merge of the fragments present?"""
-    if any(category_problems(s, lst, checksums) for lst in listings):
+    """Are these categories current, none of the source's gone, and manifest.json exactly the
+    merge of the fragments present?"""
+    if any(category_problems(s, lst, checksums) for lst in listings) or gone_categories(s):
         return False
     try:
         return read_manifest(Path(s.dataset_dir)) == build_manifest(Path(s.dataset_dir))
@@ -282,18 +283,47 @@ class TooManyFailures(RuntimeError):
 
 
 def too_many_failures(s: BuildSettings, categories: list[str], fraction: float) -> list[str]:
-    """One line per category whose failed share exceeds ``fraction`` ([] = none)."""
+    """One line per category whose failed share exceeds ``fraction``, or that built no model at
+    all ([] = none). An empty category is never a success, whatever the fraction: its shards
+    would hold nothing and `verify` would find nothing wrong with them."""
     out = []
     for c in categories:
         frag = read_fragment(Path(s.dataset_dir) / c)
-        if frag is None or not frag["models_requested"]:
+        if frag is None:
             continue
-        share = frag["models_failed"] / frag["models_requested"]
+        failed, requested = frag["models_failed"], frag["models_requested"]
+        share = failed / requested if requested else 0.0
         if share > fraction:
-            out.append(f"{c}: {frag['models_failed']} of {frag['models_requested']} models failed "
-                       f"({100 * share:.0f}%) > --max-failed-fraction {fraction:g}")
+            out.append(f"{c}: {failed} of {requested} models failed ({100 * share:.0f}%) > --max-failed-fraction {fraction:g}")
+        elif not frag["models_built"]:
+            out.append(f"{c}: no model built, {failed} of {requested} models failed" if requested
+                       else f"{c}: no model built, the source has none")
+    return out
+
+
+def gone_categories(s: BuildSettings) -> list[str]:
+    """Categories in the dataset folder built from this source (same source name in their
+    category.json) that the source no longer has: removed or renamed since."""
+    from pipeline.sources.layouts import layout_of
+
+    layout = layout_of(s.source)
+    offered = set(layout.categories(s.source)) | set(layout.also_accepts(s.source))
+    source = s.manifest_settings()["source"]
+    out = []
+    for frag_path in sorted(Path(s.dataset_dir).glob(f"*/{FRAGMENT}")):
+        try:
+            frag = read_fragment(frag_path.parent)
+        except (OSError, ValueError):
+            continue  # unreadable: not provably ours, left alone (verify names it)
+        name = frag_path.parent.name
+        if (frag or {}).get("settings", {}).get("source") == source and name not in offered:
+            out.append(name)
     return out
 
 
 def manifest_step(s: BuildSettings) -> dict:
+    """Retire the source's gone categories (their listed shards and category.json), then merge
+    manifest.json from the fragments left, so its categories and totals are the source's."""
+    for name in gone_categories(s):
+        retire_category(Path(s.dataset_dir) / name)
     return write_manifest(Path(s.dataset_dir))

@@ -13,7 +13,7 @@ import luigi
 
 from pipeline.build.settings import BuildSettings
 from pipeline.build.listing import current_listing, list_path, read_listing
-from workflows import steps, validate
+from workflows import lifetime, steps, validate
 from workflows.params import settings_values, with_parameters
 
 
@@ -34,6 +34,7 @@ class _BuildTask(luigi.Task):
     @contextlib.contextmanager
     def recorded(self) -> Iterator[None]:
         """Record this run's start and finish under <work>/_runs (see steps.record_run)."""
+        lifetime.die_with_parent()  # a task process of --workers N must not outlive the `luigi` process
         steps.record_run(self.build, self.task_id, "start")
         yield
         steps.record_run(self.build, self.task_id, "done")
@@ -137,7 +138,8 @@ class _BuildRoot(_BuildTask):
     verify = luigi.BoolParameter(default=False, significant=False,
                                  description="check every shard's sha256 (default: sizes, and sha256 of shards edited after the build)")
     max_failed_fraction = luigi.FloatParameter(default=1.0, significant=False,
-                                               description="fail when more than this fraction of a category's models failed")
+                                               description="fail when more than this fraction of a category's models failed "
+                                                           "(a category with no model built fails at any value)")
 
     def category_list(self) -> list[str]:
         raise NotImplementedError
@@ -146,6 +148,7 @@ class _BuildRoot(_BuildTask):
         super().__init__(*args, **kwargs)
         validate.check_categories(self.build, self.category_list())
         validate.check_fraction(self.max_failed_fraction)
+        validate.check_dataset_dir(self.build, self.category_list())
 
     def listings(self) -> list[dict]:
         """Each category's model list as the source is now (re-read on every call)."""
@@ -159,6 +162,7 @@ class _BuildRoot(_BuildTask):
                 and not steps.too_many_failures(self.build, self.category_list(), self.max_failed_fraction))
 
     def run(self):
+        lifetime.die_with_parent()
         steps.manifest_step(self.build)
         over = steps.too_many_failures(self.build, self.category_list(), self.max_failed_fraction)
         if over:

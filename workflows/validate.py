@@ -94,3 +94,15 @@ def check_categories(s: BuildSettings, categories: list[str]) -> None:
                     pass
             except ModelIdClash as exc:
                 raise BuildParameterError(str(exc)) from None
+
+
+def check_dataset_dir(s: BuildSettings, categories: list[str]) -> None:
+    """No category folder holds shard-named files this build did not write: it would neither
+    replace nor delete them, and left there they would be an unlisted part of the dataset."""
+    from pipeline.dataset.shards import NotOurFiles, shard_conflicts
+
+    for c in categories:
+        cat_dir = Path(s.dataset_dir) / c
+        problems = shard_conflicts(cat_dir)
+        if problems:
+            raise BuildParameterError(str(NotOurFiles(cat_dir, problems)))

@@ -8,29 +8,37 @@ every header field is fixed (sorted member order, mtime 0, uid/gid 0, empty user
 mode 0o644, GNU format): the same inputs give the same bytes.
 
 Shards of one category go to ``<dataset-dir>/<category>/<split>-NNNNN.tar``. They are first
-written into a staging folder, then moved into place one by one; a shard whose bytes did not
-change is not rewritten, so its mtime stays.
+written into a staging folder of this process, then moved into place one by one; a shard whose
+bytes did not change is not rewritten, so its mtime stays. One writer at a time per category
+folder (``.shards.lock``), whatever scheduler started it. Only files this build's records list
+(``.shards.json``, ``category.json``, ``manifest.json``) are ever replaced or deleted: any other
+``<split>-NNNNN.tar`` in the folder stops the build with its name.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import fcntl
 import hashlib
 import io
 import os
+import re
 import shutil
+import socket
 import tarfile
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterable, Iterator
 
 import numpy as np
 
-from pipeline.core.atomic import dumps_json, read_json
+from pipeline.core.atomic import dumps_json, read_json, write_json
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, RECORD,
-                                  SAMPLES_FILE, SHARD_RE, SKETCH_GLOB, SPLITS, STROKES_FILE, STROKES_MEMBER, SampleMeta,
-                                  present_parts, sample_key, shard_name)
+from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, FRAGMENT, MANIFEST, META_MEMBER, POINT_PARTS_MEMBER,
+                                  POINTS_MEMBER, RECORD, SAMPLES_FILE, SHARD_RE, SKETCH_GLOB, SPLITS, STROKES_FILE,
+                                  STROKES_MEMBER, SampleMeta, present_parts, sample_key, shard_name)
 from pipeline.core.seeding import rng_for
 from pipeline.core.splits import DEFAULT_FRACTIONS, split_of
 from pipeline.dataset.point_parts import label_points, read_obj_parts, source_obj
@@ -300,6 +308,147 @@ def list_shards(category_dir: Path) -> list[Path]:
     return sorted(p for p in d.iterdir() if SHARD_RE.match(p.name))
 
 
+# ---------------------------------------------------------------- what in a category folder is ours
+
+# Names of the shards this build placed in a category folder, rewritten before shards are moved
+# in (old and new names) and after stale ones are removed (the current names): with category.json
+# and manifest.json it tells our files from a user's that merely look like shards.
+OWNED_FILE = ".shards.json"
+LOCK_FILE = ".shards.lock"
+LOCK_WAIT_S = 900.0
+# <host>-<pid>-<mkdtemp's random part>; the host part is optional for folders of older builds
+_STAGING_RE = re.compile(r"^\.staging-(?:.+-\d+-)?[a-z0-9_]{8}$")
+
+
+class NotOurFiles(RuntimeError):
+    """Shard-named files in a category folder that this build did not write; it touches none."""
+
+    def __init__(self, category_dir: Path, problems: list[str]):
+        self.problems = problems
+        where = Path(category_dir)
+        shown = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+        super().__init__(f"{where} holds {shown}; not written by this build (not in its "
+                         f"{FRAGMENT} or {MANIFEST}), so it is left alone: move it away or choose another --dataset-dir")
+
+
+class CategoryBusy(RuntimeError):
+    """Another process holds the category's lock for longer than we wait."""
+
+
+def _json_or_none(path: Path) -> dict | None:
+    try:
+        doc = read_json(path)
+    except (OSError, ValueError):
+        return None  # missing or damaged: it vouches for nothing
+    return doc if isinstance(doc, dict) else None
+
+
+def _listed_names(entry: dict | None) -> set[str]:
+    """Shard names a category.json (or its manifest.json entry) lists."""
+    names: set[str] = set()
+    for split in ((entry or {}).get("splits") or {}).values():
+        for sh in (split or {}).get("shards") or []:
+            if isinstance(sh, dict) and isinstance(sh.get("name"), str):
+                names.add(sh["name"])
+    return names
+
+
+def owned_shards(category_dir: Path) -> set[str]:
+    """Names in ``category_dir`` this build may replace or delete: those its own marker file,
+    category.json or the dataset's manifest.json lists (any one is enough: each may be the one
+    a killed run or a user's edit left behind)."""
+    d = Path(category_dir)
+    marker = _json_or_none(d / OWNED_FILE) or {}
+    names = {n for n in marker.get("shards") or [] if isinstance(n, str)}
+    names |= _listed_names(_json_or_none(d / FRAGMENT))
+    manifest = _json_or_none(d.parent / MANIFEST) or {}
+    names |= _listed_names((manifest.get("categories") or {}).get(d.name))
+    return {n for n in names if SHARD_RE.match(n)}
+
+
+def _is_empty_dir(p: Path) -> bool:
+    return p.is_dir() and not p.is_symlink() and not any(p.iterdir())
+
+
+def shard_conflicts(category_dir: Path) -> list[str]:
+    """Shard-named entries of ``category_dir`` a build must not touch, each as "<name>: why"
+    ([] = none). Empty folders are not listed: removing one loses nothing."""
+    owned = owned_shards(category_dir)
+    out = []
+    for p in list_shards(category_dir):
+        if _is_empty_dir(p):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            out.append(f"{p.name}: a folder with files in it")
+        elif p.name not in owned:
+            out.append(f"{p.name}: a {'link' if p.is_symlink() else 'file'}")
+    return out
+
+
+def _write_owned(category_dir: Path, names: Iterable[str]) -> None:
+    write_json(Path(category_dir) / OWNED_FILE, {"shards": sorted(set(names))})
+
+
+def _remove_shard_path(p: Path) -> None:
+    """Delete a shard file (or the empty folder that took its name)."""
+    if _is_empty_dir(p):
+        p.rmdir()
+    else:
+        p.unlink()
+
+
+def _holder(lock_path: Path) -> str:
+    try:
+        host, pid = lock_path.read_text().split()[:2]
+        return f"pid {pid} on {host}"
+    except (OSError, ValueError):
+        return "a process that did not say who it is"
+
+
+@contextlib.contextmanager
+def category_lock(category_dir: Path, wait_s: float = LOCK_WAIT_S) -> Iterator[None]:
+    """Hold the category folder's exclusive lock (flock on ``.shards.lock``): one writer at a
+    time whatever scheduler started it. Waits up to ``wait_s`` for another holder, then raises
+    CategoryBusy naming it. The kernel drops the lock of a killed holder, so none goes stale."""
+    path = Path(category_dir) / LOCK_FILE
+    deadline = time.monotonic() + wait_s
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            if time.monotonic() >= deadline:
+                raise CategoryBusy(f"another build is writing {category_dir} ({_holder(path)}) and did not finish "
+                                   f"within {wait_s:g} s; let it finish, or use another --dataset-dir") from None
+            time.sleep(0.2)
+            continue
+        # A holder unlinks the file before it lets go: a lock won on the unlinked file guards nothing.
+        try:
+            st = os.stat(path)
+            mine = os.fstat(fd)
+            if (st.st_ino, st.st_dev) == (mine.st_ino, mine.st_dev):
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+        os.close(fd)
+
+
+def _remove_stale_staging(category_dir: Path) -> None:
+    """Staging folders of killed runs (called under the category lock, so none is in use)."""
+    for p in Path(category_dir).iterdir():
+        if _STAGING_RE.match(p.name) and p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+
+
 # ---------------------------------------------------------------- a category's shard set
 
 @dataclasses.dataclass
@@ -321,15 +470,29 @@ def write_category_shards(
     settings_hash: str,
     portable=lambda p: p,
     before_cleanup=None,
+    lock_wait_s: float = LOCK_WAIT_S,
 ) -> ShardSet:
     """Build the shard set of one category in a staging folder, then move it into place.
 
     Unchanged shards (same sha256) are left untouched. ``before_cleanup(result)`` runs after the
     new shards are in place and before stale ones are deleted: the caller writes the category's
-    manifest fragment there, so the fragment never lists a shard that is missing.
+    manifest fragment there, so the fragment never lists a shard that is missing. Raises
+    NotOurFiles, before writing anything, when a shard-named file the build did not write is in
+    the folder; CategoryBusy when another process keeps the folder locked past ``lock_wait_s``.
     """
     category_dir = Path(category_dir)
     category_dir.mkdir(parents=True, exist_ok=True)
+    with category_lock(category_dir, lock_wait_s):
+        _remove_stale_staging(category_dir)
+        problems = shard_conflicts(category_dir)
+        if problems:
+            raise NotOurFiles(category_dir, problems)
+        return _write_locked(category, models, category_dir, settings, seed, settings_hash, portable,
+                             before_cleanup)
+
+
+def _write_locked(category: str, models: list[ModelDirs], category_dir: Path, settings: ShardSettings,
+                  seed: int, settings_hash: str, portable, before_cleanup) -> ShardSet:
     failed: list[dict] = []
     by_split: dict[str, list[ModelDirs]] = {s: [] for s in SPLITS}
     for m in sorted(models, key=lambda m: sample_key(category, m.model_id)):
@@ -343,25 +506,52 @@ def write_category_shards(
                 failed.append({"model_id": m.model_id, "stage": "shards",
                                "path": portable(e.path), "reason": e.reason})
 
-    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=category_dir))
+    owned = owned_shards(category_dir)
+    staging = Path(tempfile.mkdtemp(prefix=f".staging-{socket.gethostname()}-{os.getpid()}-", dir=category_dir))
     try:
         shards = {s: write_split_shards(samples(by_split[s]), s, staging, settings) for s in SPLITS}
+        keep = {i.name for infos in shards.values() for i in infos}
+        # before any move: a run killed from here on still knows every shard name it may own
+        _write_owned(category_dir, owned | keep)
         written: list[str] = []
         for infos in shards.values():
             for info in infos:
                 dst = category_dir / info.name
-                if dst.exists() and dst.stat().st_size == info.bytes and file_sha256(dst) == info.sha256:
+                if (dst.is_file() and not dst.is_symlink() and dst.stat().st_size == info.bytes
+                        and file_sha256(dst) == info.sha256):
                     continue  # same bytes: keep the old file and its mtime
+                if _is_empty_dir(dst):
+                    dst.rmdir()  # a folder took the shard's name; it holds nothing
                 os.replace(staging / info.name, dst)
                 written.append(info.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    keep = {i.name for infos in shards.values() for i in infos}
     result = ShardSet(shards, sorted(failed, key=lambda f: f["model_id"]), written, [])
     if before_cleanup is not None:
         before_cleanup(result)
     for p in list_shards(category_dir):
-        if p.name not in keep:
-            p.unlink()
+        if p.name not in keep and (p.name in owned or _is_empty_dir(p)):
+            _remove_shard_path(p)
             result.removed.append(p.name)
+    _write_owned(category_dir, keep)
     return result
+
+
+def retire_category(category_dir: Path, lock_wait_s: float = LOCK_WAIT_S) -> list[str]:
+    """Delete a category the source no longer has: the shards its records list, category.json
+    and the marker, then the folder if nothing else is in it. Returns what was left (a user's
+    files), relative to the folder."""
+    category_dir = Path(category_dir)
+    with category_lock(category_dir, lock_wait_s):
+        _remove_stale_staging(category_dir)
+        owned = owned_shards(category_dir)
+        for p in list_shards(category_dir):
+            if p.name in owned and not (p.is_dir() and not _is_empty_dir(p)):
+                _remove_shard_path(p)
+        for name in (FRAGMENT, OWNED_FILE):
+            with contextlib.suppress(FileNotFoundError):
+                (category_dir / name).unlink()
+    left = sorted(p.name for p in category_dir.iterdir())
+    if not left:
+        category_dir.rmdir()
+    return left

@@ -3,7 +3,7 @@
 Checks: the manifest's own checksum; per category the fragment on disk equals the manifest
 entry; every listed shard exists with the recorded size and sha256 and reads back with tarfile
 holding exactly the recorded sample keys, each with every required member and a matching
-meta.json; no unlisted shard files lie in a category folder.
+meta.json; no unlisted shard files lie in a category folder; no category is empty.
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ def _check_shard(path: Path, info: dict, split: str) -> list[str]:
     name = f"{path.parent.name}/{path.name}"
     if not path.exists():
         return [f"{name}: missing"]
+    if path.is_dir():
+        return [f"{name}: a folder, not a shard file"]
     if path.stat().st_size != info["bytes"]:
         return [f"{name}: size {path.stat().st_size} != manifest {info['bytes']}"]
     if file_sha256(path) != info["sha256"]:
@@ -69,6 +71,10 @@ def verify_dataset(dataset_dir: Path) -> list[str]:
         frag = read_fragment(cat_dir)
         if frag != entry:
             problems.append(f"{category}/{FRAGMENT}: differs from the manifest entry")
+        if not sum(entry["splits"][split]["samples"] for split in SPLITS):
+            # consistent, yet useless: a build that built nothing fails, and so does its check
+            problems.append(f"{category}: no samples ({entry.get('models_failed', 0)} of "
+                            f"{entry.get('models_requested', 0)} models failed)")
         listed: set[str] = set()
         for split in SPLITS:
             for info in entry["splits"][split]["shards"]:
