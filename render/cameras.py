@@ -88,10 +88,11 @@ def make_view(settings: RenderSettings, azimuth_deg: float, elevation_deg: float
                 settings.orthographic, K, w2c, K @ Rt)
 
 
-def rig(settings: RenderSettings, seed: int, category: str, model_id: str) -> list[View]:
+def rig(settings: RenderSettings, seed: int, category: str, model_id: str, vertices: np.ndarray) -> list[View]:
     """The views of one model from its rig (``render.rigs``): seeded by (seed, "render",
-    category, model_id) only."""
-    return [make_view(settings, az, el) for az, el in RIGS[settings.rig](settings, seed, category, model_id)]
+    category, model_id) only; ``vertices`` is the mesh they draw (a rig may pick views by it)."""
+    pairs = RIGS[settings.rig](settings, seed, category, model_id, np.asarray(vertices, float))
+    return [make_view(settings, az, el) for az, el in pairs]
 
 
 def project(projection: np.ndarray, points: np.ndarray) -> np.ndarray:

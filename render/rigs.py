@@ -1,22 +1,24 @@
 """Camera rigs: where the cameras of one model stand, as (azimuth, elevation) pairs in degrees.
 
 Each rig is one function in ``RIGS``, registered with ``@register_rig("name")``; the function
-gets ``(settings, seed, category, model_id)`` and returns the model's (azimuth_deg, elevation_deg)
-list. ``RenderSettings`` accepts exactly the registered names and ``render.cameras.rig`` turns the
+gets ``(settings, seed, category, model_id, vertices)`` (``vertices``: the (n, 3) mesh the views
+will draw, unit radius, centred) and returns the model's (azimuth_deg, elevation_deg) list. ``RenderSettings`` accepts exactly the registered names and ``render.cameras.rig`` turns the
 pairs into cameras, so a new rig is one decorated function in this file.
 
-This module imports nothing heavy at load time: ``render.settings`` reads ``RIGS`` and is
-imported inside Blender too.
+This module imports nothing heavier than numpy at load time: ``render.settings`` reads ``RIGS``
+and is imported inside Blender too.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
 
+import numpy as np
+
 if TYPE_CHECKING:
     from render.settings import RenderSettings
 
-RigFn = Callable[["RenderSettings", int, str, str], list[tuple[float, float]]]
+RigFn = Callable[["RenderSettings", int, str, str, np.ndarray], list[tuple[float, float]]]
 RIGS: dict[str, RigFn] = {}
 
 # (azimuth, elevation) of the fixed rig; the top view is looked at from +y.
@@ -33,21 +35,55 @@ def register_rig(name: str) -> Callable[[RigFn], RigFn]:
     return add
 
 
-@register_rig("random")
-def random_rig(settings: RenderSettings, seed: int, category: str, model_id: str) -> list[tuple[float, float]]:
-    """``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly from
-    ``elevation_range``, seeded by (seed, "render", category, model_id) only."""
+def seeded_views(settings: RenderSettings, seed: int, category: str, model_id: str, n: int) -> list[tuple[float, float]]:
+    """``n`` seeded (azimuth over 360°, elevation uniform in ``elevation_range``) pairs."""
     from pipeline.core.seeding import rng_for
 
     rng = rng_for(seed, "render", category, model_id)
     lo, hi = settings.elevation_range
-    az = rng.uniform(0.0, 360.0, settings.views)
-    el = rng.uniform(lo, hi, settings.views)
+    az = rng.uniform(0.0, 360.0, n)
+    el = rng.uniform(lo, hi, n)
     # Round so the values survive a JSON round trip unchanged (same floats in Blender and on disk).
     return [(round(float(a), 6), round(float(e), 6)) for a, e in zip(az, el)]
 
 
+@register_rig("random")
+def random_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
+               vertices: np.ndarray) -> list[tuple[float, float]]:
+    """``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly from
+    ``elevation_range``, seeded by (seed, "render", category, model_id) only."""
+    return seeded_views(settings, seed, category, model_id, settings.views)
+
+
+def silhouette_extent(settings: RenderSettings, vertices: np.ndarray, azimuth: float, elevation: float) -> float:
+    """Longer side of the box of the model's projection, as a share of the frame: the extent of
+    its silhouette, and so of the drawing's ink."""
+    from render.cameras import make_view, project
+
+    uv = project(make_view(settings, azimuth, elevation).projection, np.asarray(vertices, float))
+    uv = np.clip(uv, 0.0, settings.image_size)
+    return float((uv.max(axis=0) - uv.min(axis=0)).max() / settings.image_size)
+
+
+@register_rig("representative")
+def representative_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
+                       vertices: np.ndarray) -> list[tuple[float, float]]:
+    """Random views (as "random") that show the model: of ``view_candidates`` seeded draws, the
+    first ``views`` whose silhouette spans at least ``min_view_extent`` of the frame and
+    ``view_extent_fraction`` of the widest candidate's; a view down a knife's blade, a blob a
+    tenth of the frame wide, is never drawn. When too few pass, the widest of the rest fill up."""
+    pairs = seeded_views(settings, seed, category, model_id, max(settings.view_candidates, settings.views))
+    extent = [silhouette_extent(settings, vertices, a, e) for a, e in pairs]
+    floor = max(settings.min_view_extent, settings.view_extent_fraction * max(extent))
+    kept = [i for i in range(len(pairs)) if extent[i] >= floor][: settings.views]
+    if len(kept) < settings.views:
+        rest = sorted((i for i in range(len(pairs)) if i not in kept), key=lambda i: (-extent[i], i))
+        kept += rest[: settings.views - len(kept)]
+    return [pairs[i] for i in kept]
+
+
 @register_rig("front_side_top")
-def front_side_top_rig(settings: RenderSettings, seed: int, category: str, model_id: str) -> list[tuple[float, float]]:
+def front_side_top_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
+                       vertices: np.ndarray) -> list[tuple[float, float]]:
     """Three fixed cameras: front, side (+x), top (+y); ``views`` is ignored."""
     return list(FRONT_SIDE_TOP)

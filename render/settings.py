@@ -17,16 +17,21 @@ EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour", "
 class RenderSettings:
     """How each prepared (unit-radius, origin-centred) mesh is drawn.
 
-    ``rig`` names a camera rig of ``render.rigs``: "random" places ``views`` cameras at seeded
-    azimuths over 360° and elevations drawn uniformly from ``elevation_range``; "front_side_top"
-    three fixed cameras (``views`` is ignored).
+    ``rig`` names a camera rig of ``render.rigs``: "representative" (the default) draws views as
+    "random" does but keeps only those whose silhouette spans ``min_view_extent`` of the frame
+    and ``view_extent_fraction`` of the widest of ``view_candidates`` draws; "random" places
+    ``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly from
+    ``elevation_range``; "front_side_top" three fixed cameras (``views`` is ignored).
     """
 
     backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
     views: int = 4
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
-    rig: str = "random"
+    rig: str = "representative"
+    min_view_extent: float = 0.35  # representative rig: a view's silhouette spans at least this of the frame
+    view_extent_fraction: float = 0.6  # ... and at least this share of the widest candidate's
+    view_candidates: int = 32  # ... out of this many seeded draws per model
     orthographic: bool = False
     lens_mm: float = 50.0          # on a 36 mm sensor: 39.6° field of view
     sensor_mm: float = 36.0
@@ -54,6 +59,10 @@ class RenderSettings:
         unknown = set(self.edge_types) - set(EDGE_TYPES)
         if unknown or not self.edge_types:
             raise ValueError(f"edge_types must be a non-empty subset of {EDGE_TYPES}, got {self.edge_types!r}")
+        if not (0.0 <= self.min_view_extent <= 1.0 and 0.0 <= self.view_extent_fraction <= 1.0):
+            raise ValueError("min_view_extent and view_extent_fraction must lie in [0, 1]")
+        if self.view_candidates < 1:
+            raise ValueError("view_candidates must be >= 1")
         lo, hi = self.elevation_range
         if not -90.0 < lo <= hi < 90.0:
             raise ValueError(f"elevation_range must lie in (-90, 90): {self.elevation_range}")

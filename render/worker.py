@@ -129,7 +129,7 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
         sc.set_mesh(scene, vertices, faces,
                     smooth_below_deg=180.0 - settings.crease_angle_deg if settings.smooth_shading else None)
     t_load = time.perf_counter() - t0
-    views = cameras.rig(settings, seed, category, model_id)
+    views = cameras.rig(settings, seed, category, model_id, vertices)
     strokes_per_view, view_times, view_cpu = [], [], []
     for i, view in enumerate(views):
         t, c = time.perf_counter(), time.process_time()

@@ -143,7 +143,7 @@ def test_without_the_format_its_files_are_neither_listed_nor_loaded(tmp_path):
 @pytest.fixture
 def turntable_rig():
     @rigs.register_rig("turntable")
-    def turntable(settings, seed, category, model_id):
+    def turntable(settings, seed, category, model_id, vertices):
         return [(360.0 * i / settings.views, 20.0) for i in range(settings.views)]
 
     yield turntable
@@ -152,7 +152,7 @@ def turntable_rig():
 
 def test_a_registered_rig_is_accepted_by_the_settings_and_used_by_rig(tmp_path, turntable_rig):
     s = RenderSettings(rig="turntable", views=4)
-    views = rig(s, 0, "car", "x")
+    views = rig(s, 0, "car", "x", np.zeros((1, 3)))
     assert [(v.azimuth_deg, v.elevation_deg) for v in views] == [(0.0, 20.0), (90.0, 20.0), (180.0, 20.0), (270.0, 20.0)]
     assert np.allclose(views[1].eye, s.distance * np.array([np.cos(np.radians(20)), np.sin(np.radians(20)), 0.0]))
     # the build's render overrides accept it too (the stage key then differs from the default rig's)
@@ -163,7 +163,7 @@ def test_a_registered_rig_is_accepted_by_the_settings_and_used_by_rig(tmp_path, 
 
 def test_unknown_rigs_are_refused_with_the_registered_names():
     assert "turntable" not in rigs.RIGS
-    with pytest.raises(ValueError, match=r"rig must be one of \('random', 'front_side_top'\), got 'turntable'"):
+    with pytest.raises(ValueError, match=r"rig must be one of \('random', 'representative', 'front_side_top'\), got 'turntable'"):
         RenderSettings(rig="turntable")
 
 

@@ -6,18 +6,23 @@ import numpy as np
 import pytest
 
 from render.cameras import blender_matrix_world, project, rig
+from render.rigs import silhouette_extent
 from render.settings import RenderSettings
 
+SPHERE = np.random.default_rng(0).normal(size=(2000, 3))
+SPHERE /= np.linalg.norm(SPHERE, axis=1, keepdims=True)
 
-def test_rig_is_seeded_per_model():
-    s = RenderSettings(views=8)
-    a = rig(s, 0, "car", "00001")
+
+@pytest.mark.parametrize("name", ["random", "representative"])
+def test_rig_is_seeded_per_model(name):
+    s = RenderSettings(views=8, rig=name)
+    a = rig(s, 0, "car", "00001", SPHERE)
     assert len(a) == 8
-    again = rig(s, 0, "car", "00001")
+    again = rig(s, 0, "car", "00001", SPHERE)
     assert [v.azimuth_deg for v in a] == [v.azimuth_deg for v in again]
-    assert [v.azimuth_deg for v in rig(s, 1, "car", "00001")] != [v.azimuth_deg for v in a]
-    assert [v.azimuth_deg for v in rig(s, 0, "car", "00002")] != [v.azimuth_deg for v in a]
-    el = np.array([v.elevation_deg for v in rig(RenderSettings(views=200), 0, "car", "x")])
+    assert [v.azimuth_deg for v in rig(s, 1, "car", "00001", SPHERE)] != [v.azimuth_deg for v in a]
+    assert [v.azimuth_deg for v in rig(s, 0, "car", "00002", SPHERE)] != [v.azimuth_deg for v in a]
+    el = np.array([v.elevation_deg for v in rig(RenderSettings(views=200, rig=name), 0, "car", "x", SPHERE)])
     assert el.min() >= -10 and el.max() <= 40 and el.max() - el.min() > 40
 
 
@@ -27,7 +32,7 @@ def test_unit_sphere_fits_frame(ortho):
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(5000, 3))
     pts /= np.linalg.norm(pts, axis=1, keepdims=True)
-    for v in rig(s, 3, "mug", "a"):
+    for v in rig(s, 3, "mug", "a", pts):
         uv = project(v.projection, pts)
         assert uv.min() > 0 and uv.max() < s.image_size
         # the outline nearly fills the frame (margin 1.08)
@@ -36,7 +41,7 @@ def test_unit_sphere_fits_frame(ortho):
 
 def test_projection_matches_camera_frame():
     s = RenderSettings(views=3)
-    for v in rig(s, 0, "gun", "b"):
+    for v in rig(s, 0, "gun", "b", SPHERE):
         R, t = v.world_to_camera[:3, :3], v.world_to_camera[:3, 3]
         assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
         # the origin projects to the image centre, world up projects upward (v decreases)
@@ -51,7 +56,7 @@ def test_projection_matches_camera_frame():
 
 def test_front_side_top_rig():
     s = RenderSettings(rig="front_side_top", orthographic=True)
-    front, side, top = rig(s, 0, "car", "c")
+    front, side, top = rig(s, 0, "car", "c", SPHERE)
     # front view: camera on -z; a point at +x appears on the image's left (model faces viewer)
     assert front.eye[2] < 0
     uv = project(front.projection, np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]))
@@ -71,3 +76,37 @@ def test_bad_settings_rejected():
         RenderSettings(rig="spiral")
     with pytest.raises(ValueError):
         RenderSettings(elevation_range=(10.0, -10.0))
+
+
+def _rod(length: float = 1.0, width: float = 0.05) -> np.ndarray:
+    """A knife-like box: long along z, thin along x and y."""
+    corners = np.array([[x, y, z] for x in (-width, width) for y in (-2 * width, 2 * width) for z in (-length, length)])
+    return corners
+
+
+def test_representative_rig_never_looks_down_a_rod():
+    rod = _rod()
+    random = RenderSettings(views=64, rig="random")
+    ends_on = [silhouette_extent(random, rod, v.azimuth_deg, v.elevation_deg) for v in rig(random, 0, "knife", "k", rod)]
+    assert min(ends_on) < 0.35  # some random views look along the blade: a small blob
+    s = RenderSettings(views=8)
+    assert s.rig == "representative"
+    for model in ("k", "l", "m"):
+        views = rig(s, 0, "knife", model, rod)
+        extents = [silhouette_extent(s, rod, v.azimuth_deg, v.elevation_deg) for v in views]
+        assert len(views) == 8 and min(extents) >= 0.35
+
+
+def test_representative_rig_keeps_random_views_of_a_round_model():
+    """A sphere looks alike from everywhere: every candidate passes, so the views are the random
+    rig's own draws (the first ``views`` of the candidates)."""
+    s = RenderSettings(views=4)
+    chosen = [(v.azimuth_deg, v.elevation_deg) for v in rig(s, 0, "mug", "a", SPHERE)]
+    drawn = [(v.azimuth_deg, v.elevation_deg) for v in rig(RenderSettings(views=s.view_candidates, rig="random"), 0, "mug", "a", SPHERE)]
+    assert chosen == drawn[:4]
+
+
+def test_too_few_wide_views_fill_with_the_widest():
+    flat = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0]])  # a speck: no view reaches the floor
+    s = RenderSettings(views=3, view_candidates=10)
+    assert len(rig(s, 0, "x", "y", flat)) == 3
