@@ -37,11 +37,14 @@ def _tooth_texture(n: int, grain_sigma: float) -> np.ndarray:
 
 
 def draw_pencil(strokes: list[np.ndarray], size: int, width: float, rng: np.random.Generator,
-                settings: AugmentSettings = AugmentSettings()) -> np.ndarray:
+                settings: AugmentSettings = AugmentSettings(), tones: tuple[float, float] | None = None,
+                tone: list[np.ndarray] = ()) -> np.ndarray:
     """Pencil sketch (size, size) uint8, black-ish graphite on white paper.
 
     ``strokes`` are (K, 2) (u, v) arrays in output pixels (contract convention) and ``width`` the
     nominal line width in output pixels; lengths in ``settings`` are reference-canvas pixels.
+    ``tones`` is the strokes' opacity range (default: the first of ``settings.tones``); ``tone``
+    strokes (``augment.shading``) are drawn after them, lighter and broader.
     """
     st = settings
     ss = st.supersample
@@ -51,11 +54,16 @@ def draw_pencil(strokes: list[np.ndarray], size: int, width: float, rng: np.rand
     oy, ox = rng.integers(0, big, 2)
     tooth = tooth_all[oy:oy + big, ox:ox + big]
     dark = np.zeros((big, big), np.float32)
-    points, starts, arc = densify(strokes, 1.0)  # one vertex per output px
-    half_width, darkness = half_widths(arc, starts, rng, 12.0 * scale, st.taper_length * scale,
-                                       st.pressure_noise, 0.5 * width * ss, st.darkness)
-    # contract pixel (u, v) → pixel-centre coordinates of the supersampled canvas
-    deposit(dark, tooth, points * ss - 0.5, starts, half_width, darkness, st.grain)
+    lo, hi = tones or st.tones_for(0)
+    passes = [(strokes, 1.0, (lo, hi))]
+    if len(tone):
+        passes.append((tone, st.shade_width, (lo * st.shade_tone, hi * st.shade_tone)))
+    for lines, widen, opacity in passes:
+        points, starts, arc = densify(lines, 1.0)  # one vertex per output px
+        half_width, darkness = half_widths(arc, starts, rng, 12.0 * scale, st.taper_length * scale,
+                                           st.pressure_noise, 0.5 * width * widen * ss, opacity)
+        # contract pixel (u, v) → pixel-centre coordinates of the supersampled canvas
+        deposit(dark, tooth, points * ss - 0.5, starts, half_width, darkness, st.grain)
     small = cv2.resize(dark, (size, size), interpolation=cv2.INTER_AREA)
     mottle_knots = rng.uniform(-1.0, 1.0, (6, 6)).astype(np.float32)
     mottle = cv2.resize(mottle_knots, (size, size), interpolation=cv2.INTER_CUBIC)

@@ -75,8 +75,14 @@ class AugmentSettings:
     drop_prob: float = 0.02
     drop_keep_fraction: float = 0.5  # dropped strokes return (longest first) to keep this share of ink
 
-    # Pencil look.
-    darkness: tuple[float, float] = (0.55, 0.95)   # per-stroke graphite opacity
+    # Pencil look. Each variant takes the next of ``tones`` and ``shading`` in rotation (as with
+    # ``widths``), so the variants span dark thin line drawings and light, broad, shaded ones
+    # (the paper's demo sketches: ink darkness 0.23–0.31, 3–9 % of the frame; BENCHMARKS.md).
+    tones: tuple[tuple[float, float], ...] = ((0.55, 0.95), (0.3, 0.6))  # per-stroke graphite opacity range
+    shading: tuple[float, ...] = (0.0, 0.6)        # share of strokes given soft tone beside them
+    shade_offset: tuple[float, float] = (1.5, 4.0)  # tone's distance from its stroke (reference px)
+    shade_tone: float = 0.45                       # tone's opacity relative to the variant's
+    shade_width: float = 2.2                       # tone's width relative to the variant's
     taper_length: float = 10.0                     # px over which pressure ramps at each end
     pressure_noise: float = 0.15                   # slow relative width variation
     grain: float = 0.45                            # 0 = solid graphite, 1 = only paper tooth
@@ -96,7 +102,18 @@ class AugmentSettings:
                 raise ValueError(f"{name} must lie in [0, 1]")
         if self.supersample < 1:
             raise ValueError("supersample must be >= 1")
+        if not self.tones or any(not (len(t) == 2 and 0.0 <= t[0] <= t[1] <= 1.0) for t in self.tones):
+            raise ValueError(f"tones must be (low, high) pairs with 0 <= low <= high <= 1: {self.tones}")
+        if not self.shading or any(not 0.0 <= p <= 1.0 for p in self.shading):
+            raise ValueError(f"shading must be shares in [0, 1]: {self.shading}")
 
     def width_for(self, variant: int) -> float:
         """Width (reference px) drawn by ``variant``: the widths in rotation."""
         return float(self.widths[variant % len(self.widths)])
+
+    def tones_for(self, variant: int) -> tuple[float, float]:
+        lo, hi = self.tones[variant % len(self.tones)]
+        return float(lo), float(hi)
+
+    def shading_for(self, variant: int) -> float:
+        return float(self.shading[variant % len(self.shading)])

@@ -8,6 +8,7 @@ import numpy as np
 
 from augment.pencil import draw_pencil
 from augment.settings import REFERENCE_SIZE, AugmentSettings
+from augment.shading import tone_strokes
 from augment.strokes import augment_strokes, resample_strokes
 from pipeline.core.seeding import rng_for
 
@@ -40,8 +41,12 @@ def make_variant(ref: list[np.ndarray], settings: AugmentSettings, variant: int,
     aug = augment_strokes(ref, rng_for(seed, "augment", category, model_id, view, variant), settings)
     out = [s * to_out for s in aug]
     width = settings.width_for(variant) * to_out
+    share = settings.shading_for(variant)
+    offset = (settings.shade_offset[0] * to_out, settings.shade_offset[1] * to_out)
+    tone = tone_strokes(out, rng_for(seed, "shading", category, model_id, view, variant), share, offset) if share else []
     image = draw_pencil(out, settings.out_size, width,
-                        rng_for(seed, "pencil", category, model_id, view, variant), settings)
+                        rng_for(seed, "pencil", category, model_id, view, variant), settings,
+                        settings.tones_for(variant), tone)
     return Variant(width=width, strokes=out, image=image)
 
 

@@ -11,7 +11,7 @@ from augment.settings import AugmentSettings
 from augment.variants import view_variants
 
 PLAIN = dataclasses.replace(AugmentSettings(), grain=0.0, pressure_noise=0.0, paper_mottle=0.0,
-                            darkness=(0.8, 0.8))
+                            tones=((0.8, 0.8),))
 
 
 def shape_strokes() -> list[np.ndarray]:
@@ -91,3 +91,42 @@ def test_view_variants_differ_and_repeat():
     for v in v1:  # strokes are in output pixels
         pts = np.concatenate(v.strokes)
         assert pts.min() > -5 and pts.max() < 128 + 5
+
+
+def _ink_stats(img: np.ndarray) -> tuple[float, float]:
+    """(mean darkness of ink pixels, share of the frame that is ink); ink: darkness > 0.1."""
+    d = 1.0 - img.astype(np.float32) / 255.0
+    m = d > 0.1
+    return float(d[m].mean()), float(m.mean())
+
+
+def test_variants_span_dark_thin_lines_and_light_broad_shaded_ones():
+    from augment.variants import make_variant, reference_strokes
+
+    s = AugmentSettings()
+    assert s.tones_for(0)[1] > s.tones_for(1)[1] and s.shading_for(0) == 0.0 < s.shading_for(1)
+    ref = reference_strokes(shape_strokes(), 128, s)
+    stats = [[_ink_stats(make_variant(ref, s, k, (seed, "mug", "a", 0)).image) for seed in range(6)] for k in (0, 1)]
+    dark0, cover0 = np.median(stats[0], axis=0)
+    dark1, cover1 = np.median(stats[1], axis=0)
+    assert dark1 < 0.8 * dark0  # lighter graphite ...
+    assert cover1 > 1.3 * cover0  # ... broader, with tone beside the lines
+
+
+def test_tone_strokes_are_seeded_and_off_at_share_zero():
+    from augment.shading import tone_strokes
+
+    lines = shape_strokes()
+    a = tone_strokes(lines, np.random.default_rng(3), 1.0, (1.0, 2.0))
+    b = tone_strokes(lines, np.random.default_rng(3), 1.0, (1.0, 2.0))
+    assert len(a) >= len(lines) and all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert tone_strokes(lines, np.random.default_rng(3), 0.0, (1.0, 2.0)) == []
+    # each tone stroke lies beside its line, within the offset range (x2 for a second copy)
+    d = np.linalg.norm(a[0][:, None] - lines[0][None], axis=-1).min(axis=1)
+    assert 0.5 < np.median(d) < 4.5
+
+
+def test_a_variant_without_shading_draws_no_tone():
+    rng = lambda: np.random.default_rng(5)  # noqa: E731
+    plain = draw_pencil(shape_strokes(), 128, 1.5, rng())
+    assert np.array_equal(plain, draw_pencil(shape_strokes(), 128, 1.5, rng(), tone=[]))
