@@ -84,7 +84,7 @@ def main() -> None:
         t0 = time.process_time()
         train = list(make_loader(a.dataset, a.category, "train", DataSettings(eval_views=4, n_points=s.n_points,
                                                                               image_size=s.image_size), 0, 64, train=False))
-        fits = torch.load(a.fits) if a.fits and os.path.exists(a.fits) else per_shape_fits(objective, train, a.fit_steps)
+        fits = torch.load(a.fits, weights_only=True) if a.fits and os.path.exists(a.fits) else per_shape_fits(objective, train, a.fit_steps)
         if a.fits:
             torch.save(fits, a.fits)
         rows, targets = [], []

@@ -8,10 +8,13 @@ import json
 import sys
 from typing import TYPE_CHECKING
 
+from pipeline.core.errors import ModelError
 from pipeline.core.schema import SPLITS
-from pipeline.core.settings_io import add_arguments, from_args
+from pipeline.core.settings_io import SettingError, add_arguments, from_args
+from train.errors import UsageError, one_line
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.losses.weights import add_weight_flags, weights_from_flags
+from train.templates import TemplateError
 
 if TYPE_CHECKING:
     from train.fit import FitSettings
@@ -49,7 +52,7 @@ def _parts(items: list[str]) -> dict[str, bool]:
     for item in items:
         name, _, state = item.partition("=")
         if state not in ("on", "off"):
-            raise SystemExit(f"--part {item}: use NAME=on or NAME=off")
+            raise UsageError(f"--part {item}: use NAME=on or NAME=off")
         out[name] = state == "on"
     return out
 
@@ -82,7 +85,18 @@ def main(argv: list[str] | None = None) -> int:
     it.add_argument("--steps", type=int, default=5)
     it.add_argument("--out", required=True)
     a = parser.parse_args(argv)
+    try:
+        _run(a)
+    except (UsageError, SettingError, TemplateError, ModelError) as exc:
+        # a mistake in a flag or a file (ModelError: a bad sample in a shard): one line, like
+        # argparse's own errors, and its exit status
+        print(f"{parser.prog} {a.cmd}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    return 0
 
+
+def _run(a: argparse.Namespace) -> None:
+    """Run the parsed command."""
     import torch
 
     if a.cmd == "fit":
@@ -107,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             units = CadUnits(a.units, a.scale)
         except ValueError as exc:
-            raise SystemExit(f"--units/--scale: {exc}") from exc
+            raise UsageError(f"--units/--scale: {exc}") from exc
         res = predict(a.checkpoint, a.sketch, a.out, _parts(a.part), units)
         print(json.dumps(res, indent=1))
         # the verdict last, in words: a mesh can be watertight and still pass through itself
@@ -117,7 +131,6 @@ def main(argv: list[str] | None = None) -> int:
 
         res = interpolate(a.checkpoint, a.sketch_a, a.sketch_b, a.out, a.steps)
         print(json.dumps({k: v for k, v in res.items() if k != "params"}))
-    return 0
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, shard_glob, sketch_view_variant
 from pipeline.core.seeding import rng_for
+from train.errors import UsageError
 from train.augmentation import Jitter, jitter_image
 
 
@@ -42,13 +43,35 @@ class DataSettings:
     shuffle_buffer: int = 64
     jitter: Jitter = Jitter()
 
+    def __post_init__(self) -> None:
+        for name in ("max_views", "eval_views", "n_points", "image_size", "shuffle_buffer"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"DataSettings.{name} must be an integer >= 1, got {value!r}")
+
+
+class NoShards(UsageError, ModelError):
+    """The dataset folder, its category folder or the split's shards are not there (a
+    ModelError too, naming the folder, for the callers that caught that before)."""
+
+    def __init__(self, path: str | Path, reason: str):
+        ModelError.__init__(self, path, reason)
+
 
 def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
-    """The split's shard files, sorted; raises ModelError when there are none."""
-    folder = Path(dataset) / category
+    """The split's shard files, sorted; raises NoShards (a UsageError and a ModelError) naming
+    what is missing: the dataset folder, the category in it, or the split's shards."""
+    root = Path(dataset)
+    if not root.is_dir():
+        raise NoShards(root, "the dataset folder does not exist" if not root.exists() else "not a folder")
+    folder = root / category
     urls = sorted(str(p) for p in folder.glob(shard_glob(split)))
+    if not urls and not folder.is_dir():
+        there = sorted(p.name for p in root.iterdir() if p.is_dir())
+        raise NoShards(folder, f"no {shard_glob(split)} shards: the dataset has no category {category!r} "
+                               f"(its categories: {', '.join(there) or 'none'})")
     if not urls:
-        raise ModelError(folder, f"no {shard_glob(split)} shards")
+        raise NoShards(folder, f"no {shard_glob(split)} shards")
     return urls
 
 
@@ -58,6 +81,8 @@ def to_network(img: np.ndarray) -> np.ndarray:
 
 
 def read_png(data: bytes, size: int) -> np.ndarray:
+    if not data:  # OpenCV meets an empty buffer with an assertion, not a None
+        raise ValueError("empty file")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise ValueError("undecodable PNG")
@@ -174,10 +199,12 @@ class ShardStream(IterableDataset):
             mine, every = urls[slot::n_slots], 1
         else:
             mine, every = urls, n_slots
-        stream = wds.WebDataset(mine, shardshuffle=False, nodesplitter=None, workersplitter=None, empty_check=False)
-        for i, raw in enumerate(stream):
-            if every == 1 or i % every == slot:
-                yield raw
+        i = 0
+        for url in mine:  # one shard at a time, so a read error can name its shard
+            for raw in _shard_samples(url):
+                if every == 1 or i % every == slot:
+                    yield raw
+                i += 1
 
     def __iter__(self) -> Iterator[dict]:
         slot, n_slots = self._slot()
@@ -201,7 +228,9 @@ class ShardStream(IterableDataset):
             while buffer:
                 yield from self._decoded(buffer.pop(int(rng.integers(len(buffer)))), rng)
             if produced == 0:  # an endless loop over nothing would hang the trainer
-                raise ModelError(self.urls[0], f"data slot {slot}/{n_slots} has no samples; use fewer workers/ranks")
+                # a UsageError: unlike ModelError it survives the trip back from a loader worker
+                raise UsageError(f"{Path(self.urls[0]).parent}: data slot {slot}/{n_slots} has no samples "
+                                 f"({len(self.urls)} shards); use fewer --workers or ranks")
             epoch += 1
 
     def _decoded(self, raw: dict, rng: np.random.Generator) -> Iterator[dict]:
@@ -210,6 +239,21 @@ class ShardStream(IterableDataset):
             yield decode_sample(raw, self.settings, rng, True, self.flip_ok)
         except ModelError as exc:
             warnings.warn(f"skipping bad sample {exc}")
+
+
+class ShardError(UsageError):
+    """A shard that cannot be read to its end (truncated, corrupt)."""
+
+
+def _shard_samples(url: str) -> Iterator[dict]:
+    """The raw samples of one shard; a truncated or corrupt shard raises UsageError naming it."""
+    stream = wds.WebDataset([url], shardshuffle=False, nodesplitter=None, workersplitter=None, empty_check=False)
+    try:
+        yield from stream
+    except Exception as exc:  # noqa: BLE001 - tarfile, OSError, webdataset: all mean "cannot read it"
+        # webdataset appends the stream and URL to the error's args and " @ <stream>" to its text
+        reason = str(exc.args[0] if exc.args else "").split(" @ ")[0] or "no detail"
+        raise ShardError(f"{url}: unreadable shard ({type(exc).__name__}: {reason})") from None
 
 
 def make_loader(

@@ -11,6 +11,8 @@ import os
 import torch
 import torch.distributed as dist
 
+from train.errors import UsageError
+
 
 @dataclasses.dataclass(frozen=True)
 class DistInfo:
@@ -35,7 +37,7 @@ def setup(device: str | None = None) -> DistInfo:
     local = int(os.environ.get("LOCAL_RANK", "0"))
     if device is None:
         device = f"cuda:{local}" if torch.cuda.is_available() else "cpu"
-    dev = torch.device(device)
+    dev = device_of(device, local)
     if dev.type == "cuda":
         torch.cuda.set_device(dev)
     if world > 1 and not dist.is_initialized():
@@ -43,14 +45,33 @@ def setup(device: str | None = None) -> DistInfo:
     return DistInfo(rank, world, local, dev)
 
 
+def device_of(name: str, local_rank: int = 0) -> torch.device:
+    """The ``--device`` to run on; plain "cuda" means this rank's GPU. UsageError for a name
+    torch does not know or a GPU this machine does not have."""
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise UsageError(f"--device {name}: not a device name (cpu, cuda, cuda:N)") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise UsageError(f"--device {name}: CUDA is not available on this machine (use --device cpu)")
+        dev = torch.device("cuda", local_rank if dev.index is None else dev.index)
+        if dev.index >= torch.cuda.device_count():
+            raise UsageError(f"--device {name}: this machine has {torch.cuda.device_count()} GPU(s)")
+    return dev
+
+
 def barrier(info: DistInfo) -> None:
     if info.enabled and dist.is_initialized():
         dist.barrier()
 
 
-def teardown(info: DistInfo) -> None:
+def teardown(info: DistInfo, wait: bool = True) -> None:
+    """Leave the process group; ``wait``: first meet the other ranks (a clean finish only: after
+    an error the others may never come)."""
     if info.enabled and dist.is_initialized():
-        dist.barrier()
+        if wait:
+            dist.barrier()
         dist.destroy_process_group()
 
 

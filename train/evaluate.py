@@ -15,12 +15,14 @@ Metrics (means over samples):
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import torch
 
 from pipeline.core.atomic import write_json
 from train.data import DataSettings, make_loader
+from train.errors import UsageError
 from train.fit import load_run
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
@@ -80,6 +82,16 @@ def blind_output(model, dataset: str | Path, category: str, data: DataSettings, 
     return mean_output(model, make_loader(dataset, category, "train", data, 0, batch_size, train=False))
 
 
+def check_evaluate_args(views: int, taus: tuple[float, ...], limit: int | None) -> None:
+    """UsageError naming the flag of an argument out of range (before any work is done)."""
+    if not (isinstance(views, int) and views >= 1):
+        raise UsageError(f"views must be an integer >= 1, got {views!r} (--views)")
+    if limit is not None and not (isinstance(limit, int) and limit >= 1):
+        raise UsageError(f"limit must be an integer >= 1 or unset (all samples), got {limit!r} (--limit)")
+    if not taus or not all(0 < t < math.inf for t in taus):
+        raise UsageError(f"tau must be one or more distances > 0, got {list(taus)!r} (--tau)")
+
+
 @torch.no_grad()
 def evaluate(
     checkpoint: str | Path,
@@ -93,6 +105,7 @@ def evaluate(
     batch_size: int = 8,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``."""
+    check_evaluate_args(views, taus, limit)
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     objective = Objective(template, s.n_points)

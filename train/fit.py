@@ -18,6 +18,8 @@ import hashlib
 import dataclasses
 import json
 import math
+import pickle
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -27,15 +29,16 @@ from torch.nn.parallel import DistributedDataParallel
 
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
-from pipeline.core.settings_io import from_dict
-from train.data import DataSettings, make_loader
+from pipeline.core.settings_io import SettingError, flag_name, from_dict
+from train.data import DataSettings, make_loader, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
+from train.errors import UsageError, one_line
 from train.losses.contrast import info_nce
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
-from train.templates import Template, load_template
+from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
 
 CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "grad_norm", "seconds")
@@ -85,12 +88,20 @@ class FitSettings:
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"lr_schedule {self.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
-        if not (self.ema == 0 or 0 < self.ema < 1):
-            raise ValueError(f"ema {self.ema!r}: expected 0 (off) or a decay between 0 and 1")
-        if not self.clip_grad >= 0:
-            raise ValueError(f"clip_grad {self.clip_grad!r}: expected 0 (off) or a positive norm")
+        # checked here, not in the CLI, so library callers are refused alike (a run of 0 steps
+        # used to "finish" with a NaN loss; 0 points or pixels failed deep inside torch or OpenCV)
+        for name in ("steps", "batch_size", "max_views", "n_points", "image_size", "encoder_width",
+                     "checkpoint_every", "log_every"):
+            _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
+        for name in ("warmup_steps", "workers", "val_every"):
+            _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
+        _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
+        _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
+        _require(self, "ema", _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
+                 "0 (off) or a decay between 0 and 1")
+        for name in ("clip_grad", "contrast", "match_normals"):
+            value = getattr(self, name)
+            _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
@@ -98,6 +109,23 @@ class FitSettings:
         for k in ("steps", "checkpoint_every", "log_every", "val_every", "device", "workers", "out"):
             d.pop(k)
         return d
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _require(settings: Any, name: str, ok: bool, expected: str) -> None:
+    """SettingError naming the field and its command-line flag unless ``ok``."""
+    if not ok:
+        field = {f.name: f for f in dataclasses.fields(settings)}[name]
+        flag = "--" + flag_name(field).replace("_", "-")
+        value = getattr(settings, name)
+        raise SettingError(f"{name} must be {expected}, got {value!r} ({flag})", type(settings).__name__, name)
 
 
 def save_checkpoint(
@@ -124,8 +152,38 @@ def save_checkpoint(
         )
 
 
+# What every checkpoint save_checkpoint writes holds; a file without them is not one of ours.
+CHECKPOINT_KEYS = ("settings", "model", "step")
+
+
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
-    return torch.load(path, map_location=device, weights_only=False)
+    """A checkpoint's dict, read without running any code: ``weights_only`` unpickling accepts
+    tensors and plain data only, so a crafted file cannot execute commands. UsageError (naming
+    the file) for a missing, empty, unreadable, foreign or code-carrying file."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such checkpoint file" + (" (it is a folder)" if path.is_dir() else ""))
+    if path.stat().st_size == 0:
+        raise UsageError(f"{path}: the checkpoint file is empty")
+    try:
+        ckpt = torch.load(path, map_location=device, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        # torch names the class or function the pickle would have called: "GLOBAL posix.system"
+        named = re.search(r"GLOBAL (\S+)", str(exc))
+        if named is None:  # garbage, not a pickle asking for code
+            raise UsageError(f"{path}: not a readable checkpoint (a bad pickle)") from None
+        raise UsageError(f"{path}: refused: it holds Python objects other than tensors and plain data "
+                         f"({named.group(1)}; weights_only load); only load checkpoints you trust "
+                         "(docs/train.md)") from None
+    except Exception as exc:  # noqa: BLE001 - truncated or not a torch file: the unpickler fails any which way
+        first = one_line(exc).split(". ")[0][:200]  # torch's own advice after it is about weights_only=False
+        raise UsageError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {first})") from None
+    missing = [k for k in CHECKPOINT_KEYS if not isinstance(ckpt, dict) or k not in ckpt]
+    if missing:
+        raise UsageError(f"{path}: not a sketch2patch checkpoint: missing {missing[0]!r}")
+    if not isinstance(ckpt["settings"], dict):
+        raise UsageError(f"{path}: not a sketch2patch checkpoint: 'settings' is not a dict")
+    return ckpt
 
 
 def template_from_checkpoint(ckpt: dict) -> Template:
@@ -159,13 +217,33 @@ def checkpoint_settings(ckpt: dict) -> FitSettings:
     return from_dict(FitSettings, saved)
 
 
+def _saved_settings(path: str | Path, ckpt: dict) -> FitSettings:
+    """checkpoint_settings, its SettingError naming the file."""
+    try:
+        return checkpoint_settings(ckpt)
+    except SettingError as exc:
+        raise SettingError(f"{path}: {exc}", exc.owner, exc.field) from None
+
+
+def _saved_template(path: str | Path, ckpt: dict) -> Template:
+    """template_from_checkpoint, a template that does not load naming the file."""
+    try:
+        return template_from_checkpoint(ckpt)
+    except (TemplateError, KeyError, TypeError) as exc:
+        raise UsageError(f"{path}: its template does not load ({one_line(exc)})") from None
+
+
 def load_run(path: str | Path) -> TrainedRun:
     """The run saved at ``path`` (``checkpoint.pt`` or ``best.pt``), on the CPU."""
     ckpt = load_checkpoint(path)
-    settings = checkpoint_settings(ckpt)
-    template = template_from_checkpoint(ckpt)
+    settings = _saved_settings(path, ckpt)
+    template = _saved_template(path, ckpt)
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width)
-    model.load_state_dict(ckpt["model"])
+    try:
+        model.load_state_dict(ckpt["model"])
+    except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
+        raise UsageError(f"{path}: its weights do not fit the network its settings describe "
+                         f"({one_line(exc)[:300]})") from None
     return TrainedRun(model.eval(), template, settings, int(ckpt["step"]))
 
 
@@ -191,7 +269,7 @@ def _best_so_far(out: Path, start: int) -> float:
     path = out / "best.pt"
     if not start or not path.exists():
         return float("inf")
-    value = torch.load(path, map_location="cpu", weights_only=False).get("val_chamfer")
+    value = load_checkpoint(path).get("val_chamfer")
     return float("inf") if value is None else float(value)
 
 
@@ -239,7 +317,10 @@ def train_step(
     terms (``bench/bench_step_profile.py`` times this); with ``contrast`` > 0 the batch must hold
     ``pair_images`` and the terms include "contrast". The terms also hold "grad_norm", the
     gradient's global norm before clipping; with ``clip_grad`` > 0 a larger one is scaled down to
-    it (under DDP the gradients are already averaged over ranks here, so every rank clips alike)."""
+    it (under DDP the gradients are already averaged over ranks here, so every rank clips alike).
+    A loss or gradient that is not finite raises FloatingPointError before the update, so the
+    weights stay the last finite ones (the averaged gradient's norm is the same on every rank,
+    so under DDP all ranks stop at the same step)."""
     pair = batch["pair_images"].to(device) if contrast > 0 else None
     out = net(batch["images"].to(device), batch["view_mask"].to(device), pair)
     terms = objective.batch_terms(out["params"], batch, st, weights)
@@ -250,6 +331,10 @@ def train_step(
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     terms["grad_norm"] = clip_gradient(net, clip_grad)
+    finite = torch.isfinite(loss.detach()) & torch.isfinite(terms["grad_norm"])
+    if not bool(finite):  # one scalar read per step (the progress bar reads the loss anyway)
+        raise FloatingPointError(f"the loss is {float(loss.detach()):g} and the gradient norm "
+                                 f"{float(terms['grad_norm']):g}")
     optimizer.step()
     return loss, terms
 
@@ -258,28 +343,35 @@ def fit(settings: FitSettings, progress: bool = True) -> dict:
     """Train (or resume) a run; returns {"step", "last_loss", "out"}. Works under torchrun."""
     info = setup(settings.device)
     try:
-        return _fit(settings, info, progress)
-    finally:
-        teardown(info)
+        result = _fit(settings, info, progress)
+    except BaseException:
+        # no closing barrier: a rank that failed alone (say, on a bad shard only it reads) must
+        # exit, so that torchrun stops the others, instead of waiting for them forever
+        teardown(info, wait=False)
+        raise
+    teardown(info)
+    return result
 
 
 def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     out = Path(settings.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder (--out)")
     ckpt_path, start = out / "checkpoint.pt", 0
     ckpt = load_checkpoint(ckpt_path, info.device) if ckpt_path.exists() else None
+    if ckpt is not None:
+        check_resume(ckpt_path, _saved_settings(ckpt_path, ckpt), settings)
     # a resumed run keeps the template it started with, even if the named one was rebuilt since
-    template = load_template(settings.template) if ckpt is None else template_from_checkpoint(ckpt)
+    template = load_template(settings.template) if ckpt is None else _saved_template(ckpt_path, ckpt)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device)
     if ckpt is not None:
-        saved = checkpoint_settings(ckpt)
-        if saved.identity() != settings.identity():
-            raise ValueError(f"{out}: existing run has different settings; use another --out")
         model.load_state_dict(ckpt.get("train_model", ckpt["model"]))
         optimizer.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
+    best = _best_so_far(out, start)  # read before anything is written: a bad best.pt stops the run here
     average = WeightAverage(model, settings.ema) if settings.ema > 0 else None
     if average is not None and ckpt is not None:
         average.model.load_state_dict(ckpt["model"])
@@ -298,10 +390,11 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     )  # fmt: skip
     logger = _Logger(out, start, info, settings) if info.is_main else None
     val_loader = None
+    if settings.val_every:
+        shard_urls(settings.dataset, settings.category, "val")  # checked on every rank: all stop alike
     if settings.val_every and info.is_main:
         val_data = DataSettings(eval_views=1, n_points=settings.n_points, image_size=settings.image_size)
         val_loader = make_loader(settings.dataset, settings.category, "val", val_data, 0, settings.batch_size, train=False)
-    best = _best_so_far(out, start)
     bar = None
     if progress and info.is_main and start < settings.steps:
         from tqdm import tqdm
@@ -309,7 +402,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         bar = tqdm(total=settings.steps, initial=start, desc="fit", dynamic_ncols=True)
     stream = iter(loader)
     net.train()
-    last = float("nan")
+    last = None  # null in the result when no step runs (a resume already at --steps)
+    kept = start if ckpt is not None else None  # the step checkpoint.pt holds
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch = next(stream)
@@ -317,26 +411,34 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         lr = learning_rate(settings, step)
         for group in optimizer.param_groups:
             group["lr"] = lr
-        loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights, info.device,
-                                 settings.contrast, settings.clip_grad)
+        try:
+            loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights,
+                                     info.device, settings.contrast, settings.clip_grad)
+        except FloatingPointError as exc:
+            raise UsageError(_diverged(step + 1, exc, ckpt_path, kept)) from None
         if average is not None:
             average.update(step)
         done = step + 1
         val = None
-        if val_loader is not None and (done % settings.val_every == 0 or done == settings.steps):
+        # the same on every rank, unlike ``val`` (rank 0 only): the logging branch below holds
+        # collectives, and a rank entering it alone would wait for the others forever
+        val_step = settings.val_every > 0 and (done % settings.val_every == 0 or done == settings.steps)
+        if val_loader is not None and val_step:
             val = validation_chamfer(served, val_loader, objective, info.device)
             if val < best:
                 best = val
                 save_checkpoint(out / "best.pt", served, optimizer, done, settings, template, val_chamfer=val,
                                 train_model=trained)
-        if done % settings.log_every == 0 or done == settings.steps or val is not None:
+        if done % settings.log_every == 0 or done == settings.steps or val_step:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
                 logger.log(done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr},
                            time.perf_counter() - t0)
-        if logger and (done % settings.checkpoint_every == 0 or done == settings.steps):
-            save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained)
+        if done % settings.checkpoint_every == 0 or done == settings.steps:
+            if logger:
+                save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained)
+            kept = done
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{loss.item():.4f}")
@@ -344,7 +446,35 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         bar.close()
     if logger:
         logger.close()
-    return {"step": settings.steps, "last_loss": last, "out": str(out), "param_digest": param_digest(served)}
+    return {"step": max(start, settings.steps), "last_loss": last, "out": str(out),
+            "param_digest": param_digest(served)}
+
+
+def _diverged(step: int, exc: FloatingPointError, ckpt_path: Path, kept: int | None) -> str:
+    """Why training stopped at a non-finite loss, and what is left on disk."""
+    left = "no checkpoint was saved" if kept is None else f"{ckpt_path} keeps step {kept}"
+    return (f"step {step}: training diverged ({exc}); stopped before the update, {left}; "
+            "try a lower --lr or --clip-grad")
+
+
+def settings_differences(saved: FitSettings, now: FitSettings) -> list[str]:
+    """``name saved -> now`` for each run-defining setting that differs (nested: ``weights.flat``)."""
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+        return out
+
+    a, b = flat(saved.identity()), flat(now.identity())
+    return [f"{k} {a.get(k)!r} -> {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def check_resume(ckpt_path: Path, saved: FitSettings, now: FitSettings) -> None:
+    """UsageError naming every setting a resume changes (``--steps`` and logging may change)."""
+    diff = settings_differences(saved, now)
+    if diff:
+        raise UsageError(f"{ckpt_path}: the run there has different settings ({'; '.join(diff)}); "
+                         "resume with the same settings or use another --out")
 
 
 def param_digest(model: torch.nn.Module) -> str:

@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from pipeline.core.atomic import atomic_path, write_json
+from train.errors import UsageError
 from train.export.obj import write_obj
 from train.export.quadmesh import quad_mesh
 from train.fit import load_run
@@ -25,6 +26,10 @@ def interpolate(
     checkpoint: str | Path, sketch_a: list[str], sketch_b: list[str], out: str | Path, steps: int = 5, alpha: float = 25.0
 ) -> dict:
     """Writes ``patch_XX.obj`` and ``latent_XX.obj`` (XX = 0..steps-1) and ``params.npz``."""
+    if not (isinstance(steps, int) and steps >= 2):  # both ends are always written
+        raise UsageError(f"steps must be an integer >= 2 (the two ends included), got {steps!r} (--steps)")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise UsageError(f"{out}: not a folder (--out)")
     run = load_run(checkpoint)
     model, template, size = run.model, run.template, run.settings.image_size
     ia, ib = load_sketches(sketch_a, size), load_sketches(sketch_b, size)

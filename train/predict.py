@@ -18,10 +18,10 @@ import numpy as np
 import torch
 
 from pipeline.core.atomic import write_npy
-from pipeline.core.errors import ModelError
 from pipeline.core.images import save_png
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
 from train.data import read_png, to_network
+from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import write_iges
 from train.export.obj import edge_report, write_obj
@@ -37,11 +37,12 @@ def load_sketches(paths: list[str | Path], size: int) -> torch.Tensor:
     """PNG sketches (black on white) -> (1, V, 1, size, size) network input."""
     imgs = []
     for p in paths:
-        data = Path(p).read_bytes() if Path(p).exists() else b""
+        if not Path(p).is_file():
+            raise UsageError(f"{p}: no such sketch file" + (" (it is a folder)" if Path(p).is_dir() else ""))
         try:
-            img = read_png(data, size)
-        except (ValueError, cv2.error) as exc:
-            raise ModelError(p, f"not a readable image: {exc}") from exc
+            img = read_png(Path(p).read_bytes(), size)
+        except (OSError, ValueError, cv2.error) as exc:
+            raise UsageError(f"{p}: not a readable image ({one_line(exc)})") from None
         imgs.append(to_network(img))
     return torch.from_numpy(np.stack(imgs))[None]
 
@@ -127,12 +128,16 @@ def predict(
     parts: dict[str, bool] | None = None,
     units: CadUnits = CadUnits(),
 ) -> dict:
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: not a folder (--out)")
     run = load_run(checkpoint)
     template = run.template
+    try:  # a part switched off drops its patches and brings in its closing patches: still closed
+        keep = template.active_patches(parts)
+    except ValueError as exc:
+        raise UsageError(f"--part: {exc}") from None
     params = run.model(load_sketches(sketches, run.settings.image_size))[0]
-    out = Path(out)
     save_template(predicted_template(template, params), out / "patches.json")
-    # a part switched off drops its patches and brings in its closing patches: still closed
-    keep = template.active_patches(parts)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
     return export_patches(patches, out, units)
