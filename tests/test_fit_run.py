@@ -83,8 +83,10 @@ def test_training_is_deterministic(shards, tmp_path):
 def test_evaluate_reports_every_metric_for_model_and_template(shards, tmp_path):
     out = tmp_path / "run"
     fit(settings(shards, out, 1), progress=False)
-    res = evaluate(out / "checkpoint.pt", shards, "test", out=tmp_path / "eval.json")
+    res = evaluate(out / "checkpoint.pt", shards, "test", out=tmp_path / "eval.json", cad_check=1)
     assert res["samples"] == 2
+    assert res["cad_checked"] == 1 and res["model"]["cad_clean"] in (0.0, 1.0)  # the kernel's verdict, averaged
+    assert "cad_clean" in format_table(res)
     for who in ("model", "template", "blind"):
         assert set(metric_names((0.02, 0.05))) <= set(res[who]) and all(v == v for v in res[who].values())
     assert res["template"]["chamfer"] > 0 and res["template"]["chamfer_sq_x1000"] > 0
@@ -177,3 +179,12 @@ def test_gradient_clipping_bounds_the_update_and_logs_the_norm(shards, tmp_path)
     rows = list(csv.DictReader(open(tmp_path / "clip" / "log.csv")))
     assert all(float(r["grad_norm"]) > 0 for r in rows)
     assert load_run(tmp_path / "clip" / "checkpoint.pt").settings.clip_grad == 0.5
+
+
+def test_the_run_keeps_how_its_sketches_fill_the_frame(shards, tmp_path):
+    from train.sketch_input import Framing
+
+    fit(settings(shards, tmp_path / "run", 1), progress=False)
+    ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert set(ckpt["framing"]) == {"extent", "darkness", "width"} and 0 < ckpt["framing"]["extent"] <= 1
+    assert load_run(tmp_path / "run" / "checkpoint.pt").framing == Framing(**ckpt["framing"])

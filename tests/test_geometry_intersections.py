@@ -1,6 +1,7 @@
 import io
+import json
 import sys
-from contextlib import redirect_stdout
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import cv2
@@ -70,12 +71,15 @@ def test_predict_flags_an_intersecting_prediction(tmp_path):
     s = FitSettings(dataset="-", category="x", template="sphere24", out=str(tmp_path), image_size=32)
     save_checkpoint(tmp_path / "ck.pt", model, torch.optim.Adam(model.parameters()), 0, s, t)
     cv2.imwrite(str(tmp_path / "s.png"), box_sketch(np.array([0.6, 0.6, 0.5]), camera(30, 20, 32), 32, 1))
-    printed = io.StringIO()
-    with redirect_stdout(printed):
+    printed, said = io.StringIO(), io.StringIO()
+    with redirect_stdout(printed), redirect_stderr(said):
         main(["predict", "--checkpoint", str(tmp_path / "ck.pt"), "--sketch", str(tmp_path / "s.png"),
-              "--out", str(tmp_path / "out"), "--units", "in"])  # fmt: skip
-    last = printed.getvalue().strip().splitlines()[-1]
-    assert last.startswith("NOT CLEAN:") and "intersecting patch pairs" in last and "self intersecting faces" in last
+              "--out", str(tmp_path / "out"), "--units", "in", "--json"])  # fmt: skip
+    last = said.getvalue().strip().splitlines()[-1]
+    assert last.startswith("NOT CLEAN:") and "the CAD kernel finds" in last and "patch pairs" in last
+    res = json.loads(printed.getvalue())  # with --json, stdout is JSON only
+    assert res == json.loads((tmp_path / "out" / "prediction.json").read_text())
+    assert res["cad_kernel"]["self_interferences"] > 0 and not res["clean"]
     header = [ln for ln in (tmp_path / "out" / "mesh.obj").read_text().splitlines() if ln.startswith("#")]
     assert "# watertight: True" in header and "# clean: False" in header
     assert any(ln.startswith("# intersecting_patch_pairs: ") and not ln.endswith(": 0") for ln in header)

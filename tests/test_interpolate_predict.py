@@ -66,7 +66,7 @@ def test_interpolation_endpoints_equal_the_inputs(checkpoint, tmp_path):
 
     model = load_run(ck).model
     with torch.no_grad():
-        pa, pb = model(load_sketches([a], 32))[0].numpy(), model(load_sketches([b], 32))[0].numpy()
+        pa, pb = (model(load_sketches([s], 32).tensor)[0].numpy() for s in (a, b))
     for space in ("patch", "latent"):
         assert np.allclose(res["params"][space][0], pa, atol=1e-6) and np.allclose(res["params"][space][-1], pb, atol=1e-6)
     assert sorted(p.name for p in tmp_path.glob("latent_*.obj")) == ["latent_00.obj", "latent_01.obj", "latent_02.obj"]

@@ -31,3 +31,37 @@ def test_recipes_hold_their_rows_settings() -> None:
 def test_unknown_recipe_names_the_choices() -> None:
     with pytest.raises(ValueError, match="unknown recipe 'chair': expected one of airplane, bathtub"):
         recipe("chair")
+
+
+def _fit(argv: list[str]) -> FitSettings:
+    import argparse
+
+    from train.cli import _fit_args, fit_settings, given_flags
+
+    p = argparse.ArgumentParser()
+    _fit_args(p)
+    return fit_settings(p.parse_args(argv), given_flags(p, argv))
+
+
+def test_fit_recipe_flag_takes_the_recipe_and_flags_override_it() -> None:
+    s = _fit(["--recipe", "knife", "--dataset", "d", "--out", "o"])
+    assert s == recipe("knife", "d", "o")
+    s = _fit(["--recipe", "airplane", "--dataset", "d", "--out", "o", "--steps=50", "--lr", "1e-4", "--w-flat", "3"])
+    assert (s.steps, s.lr, s.weights.flat) == (50, 1e-4, 3.0)
+    assert (s.ema, s.weights.collision) == (0.999, 3.0)  # the rest stays the recipe's
+
+
+def test_fit_without_a_recipe_still_needs_its_category_and_template() -> None:
+    from train.errors import UsageError
+
+    with pytest.raises(UsageError, match="--category and --template required"):
+        _fit(["--dataset", "d", "--out", "o"])
+
+
+def test_help_lists_the_recipes(capsys) -> None:
+    from train.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    out = capsys.readouterr().out
+    assert "--recipe" in out and all(name in out for name in RECIPES)

@@ -119,3 +119,43 @@ def test_blank_image_is_a_clear_error(image: np.ndarray) -> None:
 def test_unreadable_image_is_a_clear_error(data: bytes, words: str) -> None:
     with pytest.raises(SketchError, match=words):
         normalize_sketch(data, SIZE, name="x.png")
+
+
+def test_predictions_of_person_like_variants_stay_with_the_clean_sketch(tmp_path) -> None:
+    """Through predict's own input path (load_sketches): each variant's prediction is within a
+    quarter of the distance between the predictions for two different drawings; read as before
+    (grey + resize), the transparent and inverted drawings are not."""
+    import torch
+
+    from train.model import SketchToPatches
+    from train.predict import load_sketches
+    from train.templates import load_template
+
+    torch.manual_seed(0)
+    model = SketchToPatches(load_template("knife").initial_params(), encoder_width=16)
+    with torch.no_grad():
+        model.out.weight.normal_(0, 0.02)  # an untrained network that still answers each drawing
+    model.eval()
+    knife, mug = _drawing("knife"), _drawing("mug")
+    files = {"clean": _png(knife), "other": _png(mug), **_variants(knife)}
+    path = {}
+    for i, (name, data) in enumerate(files.items()):  # no extension: the content says what it is
+        path[name] = tmp_path / f"sketch{i}"
+        path[name].write_bytes(data)
+
+    @torch.no_grad()
+    def points(tensor) -> np.ndarray:
+        return model(tensor)[0].numpy()
+
+    def dist(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.abs(a - b).mean())
+
+    clean = points(load_sketches([path["clean"]], SIZE).tensor)
+    between = dist(clean, points(load_sketches([path["other"]], SIZE).tensor))
+    far = {n: round(dist(points(load_sketches([path[n]], SIZE).tensor), clean) / between, 3)
+           for n in _variants(knife)}
+    assert all(v <= 0.25 for v in far.values()), far
+    plain = lambda d: torch.from_numpy(1.0 - cv2.resize(cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_GRAYSCALE),  # noqa: E731
+                                                         (SIZE, SIZE)).astype(np.float32)[None, None, None] / 255.0)
+    for name in ("transparent PNG", "inverted"):
+        assert dist(points(plain(files[name])), clean) > 0.25 * between, name

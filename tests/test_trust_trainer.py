@@ -257,7 +257,7 @@ def test_a_missing_or_unreadable_sketch_is_named(world, tmp_path, capsys):
     (tmp_path / "empty.png").write_bytes(b"")
     cases = [(tmp_path / "nope.png", "nope.png: no such sketch file"),
              (tmp_path, f"{tmp_path}: no such sketch file (it is a folder)"),
-             (tmp_path / "notes.png", "notes.png: not a readable image (undecodable PNG)"),
+             (tmp_path / "notes.png", "notes.png: not a readable image (not a PNG, JPEG, WebP or TIFF file)"),
              (tmp_path / "empty.png", "empty.png: not a readable image (empty file)")]
     for path, words in cases:
         assert words in cli_error(capsys, ["predict", "--checkpoint", ck, "--sketch", str(path), "--out",

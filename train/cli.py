@@ -22,8 +22,16 @@ if TYPE_CHECKING:
 
 def _fit_args(p: argparse.ArgumentParser) -> None:
     from train.fit import FitSettings
+    from train.recipes import RECIPES, describe
 
     add_arguments(p, FitSettings, skip=TEMPLATE_DEFAULTS)  # one flag per setting, help from the field
+    for action in p._actions:  # a recipe names the category and the template
+        if action.dest in RECIPE_NAMES:
+            action.required, action.default = False, None
+    p.add_argument("--recipe", choices=RECIPES, default=None,
+                   help="start from a named recipe, a complete set of settings measured for that category "
+                        "(BENCHMARKS.md's quality table); any flag given overrides its value: "
+                        + "; ".join(f"{r}: {describe(r)}" for r in RECIPES))
     # added by hand so its default can come from the template file; the help is the field's
     field = {f.name: f for f in dataclasses.fields(FitSettings)}["match_normals"]
     p.add_argument("--match-normals", type=float, default=None, help=field.metadata["help"])
@@ -33,18 +41,53 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
 
 # Training settings whose defaults come from the template file; the command line overrides them.
 TEMPLATE_DEFAULTS = ("weights", "match_normals")
+# Required unless a recipe gives them.
+RECIPE_NAMES = ("category", "template")
 
 
-def fit_settings(a: argparse.Namespace) -> FitSettings:
+def given_flags(parser: argparse.ArgumentParser, argv: list[str]) -> set[str]:
+    """Destinations of the options that appear in ``argv`` (what the user set, not a default)."""
+    given = set()
+    for token in argv:
+        option = token.split("=", 1)[0]
+        action = parser._option_string_actions.get(option)
+        if action is not None:
+            given.add(action.dest)
+    return given
+
+
+def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSettings:
     """The run's settings from ``fit``'s flags: loss weights are the paper's, then the template
     file's regularizers, then the flags; the matching λ is the template file's unless
-    --match-normals is given."""
+    --match-normals is given. With ``--recipe``, the recipe's settings, then the flags in
+    ``given`` (those the user typed) on top."""
     from train.fit import FitSettings
     from train.templates import load_template
 
+    if getattr(a, "recipe", None):
+        return _recipe_settings(a, given or set())
+    missing = [f"--{n}" for n in RECIPE_NAMES if getattr(a, n) is None]
+    if missing:
+        raise UsageError(f"{' and '.join(missing)} required (or --recipe)")
     tpl = load_template(a.template)
     return from_args(FitSettings, a, skip=TEMPLATE_DEFAULTS, weights=weights_from_flags(a, tpl.regularizers),
                      match_normals=tpl.match_normals if a.match_normals is None else a.match_normals)
+
+
+def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
+    from train.fit import FitSettings
+    from train.losses.weights import weight_overrides
+    from train.recipes import recipe
+
+    base = recipe(a.recipe, a.dataset, a.out)
+    fields = {f.name for f in dataclasses.fields(FitSettings)} - set(TEMPLATE_DEFAULTS)
+    changes = {k: getattr(a, k) for k in given & fields}
+    if "match_normals" in given:
+        changes["match_normals"] = a.match_normals
+    weights = weight_overrides(a)
+    if weights:
+        changes["weights"] = dataclasses.replace(base.weights, **weights)
+    return dataclasses.replace(base, **changes)
 
 
 def _parts(items: list[str]) -> dict[str, bool]:
@@ -60,7 +103,8 @@ def _parts(items: list[str]) -> dict[str, bool]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train", description=__doc__)
     sub = parser.add_subparsers(dest="cmd", required=True)
-    _fit_args(sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)"))
+    fit_parser = sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)")
+    _fit_args(fit_parser)
     ev = sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split")
     ev.add_argument("--checkpoint", required=True)
     ev.add_argument("--dataset", required=True)
@@ -70,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)")
     ev.add_argument("--limit", type=int, default=None, help="evaluate at most this many samples")
     ev.add_argument("--out", default=None, help="JSON path (default: next to the checkpoint)")
+    ev.add_argument("--cad-check", type=int, default=16,
+                    help="check this many predictions with the CAD kernel (cad_clean: the share predict would "
+                         "call clean; a second or more each; 0: off)")
     pr = sub.add_parser("predict", help="patches + OBJ + quad mesh + IGES + PNG from sketches")
     pr.add_argument("--checkpoint", required=True)
     pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
@@ -78,13 +125,17 @@ def main(argv: list[str] | None = None) -> int:
     pr.add_argument("--units", default=DEFAULT_UNITS, choices=sorted(MM_PER_UNIT), help="length unit declared in patches.stp / patches.igs")
     pr.add_argument("--scale", type=float, default=None,
                     help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)")  # fmt: skip
+    pr.add_argument("--json", action="store_true",
+                    help="print the result as JSON on stdout (it is always written to OUT/prediction.json)")
     it = sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)")
     it.add_argument("--checkpoint", required=True)
     it.add_argument("--sketch-a", nargs="+", required=True)
     it.add_argument("--sketch-b", nargs="+", required=True)
     it.add_argument("--steps", type=int, default=5)
     it.add_argument("--out", required=True)
+    argv = sys.argv[1:] if argv is None else list(argv)
     a = parser.parse_args(argv)
+    a.given = given_flags(fit_parser, argv) if a.cmd == "fit" else set()
     try:
         _run(a)
     except (UsageError, SettingError, TemplateError, ModelError) as exc:
@@ -102,7 +153,7 @@ def _run(a: argparse.Namespace) -> None:
     if a.cmd == "fit":
         from train.fit import fit
 
-        print(json.dumps(fit(fit_settings(a), progress=not a.no_progress)))
+        print(json.dumps(fit(fit_settings(a, a.given), progress=not a.no_progress)))
     elif a.cmd == "evaluate":
         from pathlib import Path
 
@@ -112,7 +163,8 @@ def _run(a: argparse.Namespace) -> None:
         ckpt = Path(a.checkpoint)
         out = a.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{a.split}.json"))
         with torch.no_grad():
-            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out)
+            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out,
+                           cad_check=a.cad_check)
         print(format_table(res))
         print(f"saved {out}")
     elif a.cmd == "predict":
@@ -123,9 +175,13 @@ def _run(a: argparse.Namespace) -> None:
         except ValueError as exc:
             raise UsageError(f"--units/--scale: {exc}") from exc
         res = predict(a.checkpoint, a.sketch, a.out, _parts(a.part), units)
-        print(json.dumps(res, indent=1))
-        # the verdict last, in words: a mesh can be watertight and still pass through itself
-        print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]))
+        if a.json:
+            print(json.dumps(res, indent=1))
+        # people read stderr: where the files are, then the verdict in words (a mesh can be
+        # watertight and still pass through itself)
+        print(f"wrote {a.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
+              file=sys.stderr)
+        print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]), file=sys.stderr)
     elif a.cmd == "interpolate":
         from train.interpolate import interpolate
 

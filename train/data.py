@@ -29,6 +29,7 @@ from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER,
 from pipeline.core.seeding import rng_for
 from train.errors import UsageError
 from train.augmentation import Jitter, jitter_image
+from train.sketch_input import Framing, measure_framing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +74,18 @@ def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     if not urls:
         raise NoShards(folder, f"no {shard_glob(split)} shards")
     return urls
+
+
+def shard_framing(dataset: str | Path, category: str, image_size: int, limit: int = 256) -> Framing:
+    """How the category's training sketches fill their frame (``train.sketch_input.Framing``),
+    measured on its first ``limit`` train images: what a person's drawing is re-framed to."""
+    images: list[np.ndarray] = []
+    for url in shard_urls(dataset, category, "train"):
+        for raw in _shard_samples(url):
+            images += [read_png(raw[n], image_size) for names in sketch_table(raw).values() for n in names]
+            if len(images) >= limit:
+                return measure_framing(images[:limit])
+    return measure_framing(images)
 
 
 def to_network(img: np.ndarray) -> np.ndarray:

@@ -11,6 +11,9 @@ Metrics (means over samples):
                    means summed, ×1000, between area-uniform samples of the patches and the target
   normal_consistency   mean |cos| between nearest-neighbour normals, both directions
   fscore@τ         F-score at distance τ on the unit-sphere frame, one per requested τ
+  cad_clean        (network, ``cad_check`` > 0) share of the first ``cad_check`` predictions whose
+                   exported solid the CAD kernel finds free of self-interference: the verdict
+                   ``predict`` prints (``train.export.kernel_check``), averaged
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ import torch
 from pipeline.core.atomic import write_json
 from train.data import DataSettings, make_loader
 from train.errors import UsageError
+from train.export.bicubic import coons_to_bezier
+from train.export.kernel_check import kernel_verdict
+from train.export.units import CadUnits
 from train.fit import load_run
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
@@ -64,6 +70,16 @@ def batch_metrics(
     return out
 
 
+def cad_verdicts(objective: Objective, params: torch.Tensor, meta: list[dict]) -> list[bool]:
+    """The CAD kernel's clean verdict for each prediction, on its present patches, at the CAD
+    export's scale (as ``predict`` sews and checks them)."""
+    mask = objective.patch_mask(meta, params.device)
+    patches = objective.template.patches_from_params(params.double())
+    mm = CadUnits().mm
+    return [kernel_verdict(coons_to_bezier((p if mask is None else p[mask[b]]).numpy()) * mm).clean
+            for b, p in enumerate(patches)]
+
+
 @torch.no_grad()
 def mean_output(model, loader) -> torch.Tensor:
     """Mean network output ``(D,)`` over a loader's samples: the sketch-blind constant prediction."""
@@ -103,9 +119,14 @@ def evaluate(
     limit: int | None = None,
     out: str | Path | None = None,
     batch_size: int = 8,
+    cad_check: int = 0,
 ) -> dict:
-    """Mean metrics of the network and of the template baseline; saved as JSON when ``out``."""
+    """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
+    With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
+    predictions (a second or more each: the kernel intersects the exact surfaces)."""
     check_evaluate_args(views, taus, limit)
+    if not (isinstance(cad_check, int) and cad_check >= 0):
+        raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     objective = Objective(template, s.n_points)
@@ -120,8 +141,11 @@ def evaluate(
     sums = {name: {k: 0.0 for k in names} for name in baselines}
     count = 0
     base = template.initial_params()[None]
+    verdicts = []
     for batch in loader:
         params = model(batch["images"], batch["view_mask"])
+        if len(verdicts) < cad_check:
+            verdicts += cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])
         for name, p in (("model", params), ("template", base.expand_as(params)), ("blind", blind.expand_as(params))):
             for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
                 sums[name][k] += float(v.sum())
@@ -138,6 +162,9 @@ def evaluate(
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},
     }
+    if verdicts:
+        result["model"]["cad_clean"] = sum(verdicts) / len(verdicts)
+        result["cad_checked"] = len(verdicts)
     if out:
         write_json(out, result)
     return result
@@ -147,7 +174,7 @@ def format_table(result: dict) -> str:
     cols = [c for c in ("model", "template", "blind") if c in result]
     lines = [f"{'metric':<20}" + "".join(f"{c:>14}" for c in cols)]
     for k in result["model"]:
-        lines.append(f"{k:<20}" + "".join(f"{result[c][k]:>14.6g}" for c in cols))
+        lines.append(f"{k:<20}" + "".join(f"{result[c][k]:>14.6g}" if k in result[c] else f"{'-':>14}" for c in cols))
     return "\n".join(lines)
 
 

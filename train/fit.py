@@ -30,7 +30,7 @@ from torch.nn.parallel import DistributedDataParallel
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import SettingError, flag_name, from_dict
-from train.data import DataSettings, make_loader, shard_urls
+from train.data import DataSettings, make_loader, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
 from train.losses.contrast import info_nce
@@ -38,6 +38,7 @@ from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
+from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
 
@@ -131,9 +132,11 @@ def _require(settings: Any, name: str, ok: bool, expected: str) -> None:
 def save_checkpoint(
     path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
     template: Template, val_chamfer: float | None = None, train_model: torch.nn.Module | None = None,
+    framing: Framing | None = None,
 ) -> None:
     """``model`` is the network the checkpoint hands out (evaluate, predict); ``train_model``, when
-    it differs (a weight average is handed out), holds the weights a resume continues training."""
+    it differs (a weight average is handed out), holds the weights a resume continues training;
+    ``framing``, how the training sketches fill their frame (a person's drawing is re-framed so)."""
     with atomic_path(path) as tmp:
         torch.save(
             {
@@ -147,6 +150,7 @@ def save_checkpoint(
                 # the template itself: a rebuilt shipped template must not change what an old run means
                 "template_json": template.to_json(),
                 "num_params": model.num_params,
+                **({"framing": dataclasses.asdict(framing)} if framing is not None else {}),
             },
             tmp,
         )
@@ -203,6 +207,7 @@ class TrainedRun:
     template: Template
     settings: FitSettings
     step: int
+    framing: Framing = Framing()  # checkpoints from before it was stored: the shipped default
 
 
 # Settings removed since, with the value that meant "off": a checkpoint saved with that value
@@ -244,7 +249,14 @@ def load_run(path: str | Path) -> TrainedRun:
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
         raise UsageError(f"{path}: its weights do not fit the network its settings describe "
                          f"({one_line(exc)[:300]})") from None
-    return TrainedRun(model.eval(), template, settings, int(ckpt["step"]))
+    return TrainedRun(model.eval(), template, settings, int(ckpt["step"]), _saved_framing(path, ckpt))
+
+
+def _saved_framing(path: str | Path, ckpt: dict) -> Framing:
+    try:
+        return Framing(**ckpt["framing"]) if isinstance(ckpt.get("framing"), dict) else Framing()
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{path}: its sketch framing does not load ({one_line(exc)})") from None
 
 
 @torch.no_grad()
@@ -363,6 +375,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         check_resume(ckpt_path, _saved_settings(ckpt_path, ckpt), settings)
     # a resumed run keeps the template it started with, even if the named one was rebuilt since
     template = load_template(settings.template) if ckpt is None else _saved_template(ckpt_path, ckpt)
+    # how the training sketches fill the frame, kept with the run for predict's normalization
+    framing = _saved_framing(ckpt_path, ckpt) if ckpt is not None and "framing" in ckpt \
+        else shard_framing(settings.dataset, settings.category, settings.image_size)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     trainee = TrainingNet(model)
@@ -428,7 +443,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             if val < best:
                 best = val
                 save_checkpoint(out / "best.pt", served, optimizer, done, settings, template, val_chamfer=val,
-                                train_model=trained)
+                                train_model=trained, framing=framing)
         if done % settings.log_every == 0 or done == settings.steps or val_step:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
@@ -437,7 +452,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                            time.perf_counter() - t0)
         if done % settings.checkpoint_every == 0 or done == settings.steps:
             if logger:
-                save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained)
+                save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained, framing=framing)
             kept = done
         if bar:
             bar.update(1)

@@ -32,7 +32,7 @@ def interpolate(
         raise UsageError(f"{out}: not a folder (--out)")
     run = load_run(checkpoint)
     model, template, size = run.model, run.template, run.settings.image_size
-    ia, ib = load_sketches(sketch_a, size), load_sketches(sketch_b, size)
+    ia, ib = (load_sketches(s, size, run.framing).tensor for s in (sketch_a, sketch_b))
     za, zb = model.latent(ia), model.latent(ib)
     pa, pb = model.decode_latent(za), model.decode_latent(zb)
     series = {"patch": lerp(pa, pb, steps), "latent": [model.decode_latent(z) for z in lerp(za, zb, steps)]}

@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline.core.atomic import write_npy
+from pipeline.core.atomic import write_json, write_npy
 from pipeline.core.images import save_png
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
-from train.data import read_png, to_network
+from train.data import to_network
 from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import write_iges
@@ -28,23 +28,45 @@ from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
 from train.export.units import CadUnits
+from train.export.kernel_check import KernelVerdict, solid_verdict
 from train.fit import load_run
+from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.geometry.intersections import Intersections, mesh_intersections
 from train.templates import FreePoint, JunctionPoint, Template, save_template
 
 
-def load_sketches(paths: list[str | Path], size: int) -> torch.Tensor:
-    """PNG sketches (black on white) -> (1, V, 1, size, size) network input."""
-    imgs = []
+@dataclasses.dataclass(frozen=True)
+class Sketches:
+    """A person's drawings as the network sees them: ``tensor`` (1, V, 1, S, S), the images
+    (uint8, black on white) and what normalization did to each (``train.sketch_input``)."""
+
+    tensor: torch.Tensor
+    images: list[np.ndarray]
+    reports: list[dict]
+
+
+def load_sketches(paths: list[str | Path], size: int, framing: Framing = Framing()) -> Sketches:
+    """Image files (any of PNG, JPEG, WebP, TIFF; any paper, polarity, framing) -> network input,
+    each normalized like the training sketches (``normalize_sketch``)."""
+    images, reports = [], []
     for p in paths:
         if not Path(p).is_file():
             raise UsageError(f"{p}: no such sketch file" + (" (it is a folder)" if Path(p).is_dir() else ""))
         try:
-            img = read_png(Path(p).read_bytes(), size)
-        except (OSError, ValueError, cv2.error) as exc:
+            norm = normalize_sketch(Path(p).read_bytes(), size, framing, name=str(p))
+        except SketchError as exc:
+            raise UsageError(str(exc)) from None
+        except (OSError, cv2.error) as exc:
             raise UsageError(f"{p}: not a readable image ({one_line(exc)})") from None
-        imgs.append(to_network(img))
-    return torch.from_numpy(np.stack(imgs))[None]
+        images.append(norm.image)
+        reports.append({"sketch": str(p), **norm.report})
+    tensor = torch.from_numpy(np.stack([to_network(i) for i in images]))[None]
+    return Sketches(tensor, images, reports)
+
+
+def save_inputs(out: Path, sketches: Sketches) -> None:
+    """``input.png``: what the network saw, the views side by side."""
+    save_png(out / "input.png", np.concatenate(sketches.images, axis=1))
 
 
 def predicted_template(template: Template, params: torch.Tensor) -> Template:
@@ -61,26 +83,29 @@ def predicted_template(template: Template, params: torch.Tensor) -> Template:
                                metadata={**template.metadata, "predicted": True})  # fmt: skip
 
 
-def mesh_problems(edges: dict, hits: Intersections, step_solid: bool, free_edges: int) -> list[str]:
-    """What keeps an exported prediction from being clean, in words (empty list: clean)."""
+def mesh_problems(edges: dict, kernel: KernelVerdict, free_edges: int) -> list[str]:
+    """What keeps an exported prediction from being clean, in words (empty list: clean). The
+    self-intersection verdict is the CAD kernel's (OpenCASCADE's check of the sewn solid, as a
+    CAD program runs it), not the triangle mesh's, which misses shallow crossings."""
     problems = []
     if not edges["watertight"]:
         problems.append(f"mesh not watertight ({edges['boundary_edges']} boundary, {edges['nonmanifold_edges']} non-manifold edges)")
-    counts = hits.summary()
-    for key in ("self_intersecting_faces", "intersecting_patch_pairs", "folded_patches"):
-        if counts[key]:
-            problems.append(f"{counts[key]} {key.replace('_', ' ')}")
-    if not step_solid:
+    if not kernel.solid:
         problems.append(f"STEP is an open shell, not a solid ({free_edges} free edges)")
+    if not kernel.clean:
+        pairs = ", ".join(f"{a}-{b}" for a, b in kernel.patch_pairs) or "-"
+        folded = f"; folded patches {', '.join(map(str, kernel.folded_patches))}" if kernel.folded_patches else ""
+        problems.append(f"the CAD kernel finds {kernel.faulty} self-interferences (patch pairs {pairs}{folded})")
     return problems
 
 
-def _obj_header(edges: dict, hits: Intersections, units: CadUnits, problems: list[str]) -> list[str]:
-    pairs = " ".join(f"{a}-{b}" for a, b in hits.patch_pairs)
+def _obj_header(edges: dict, hits: Intersections, kernel: KernelVerdict, units: CadUnits, problems: list[str]) -> list[str]:
+    pairs = " ".join(f"{a}-{b}" for a, b in kernel.patch_pairs)
     return [
         "sketch2patch prediction mesh; model frame (unit-sphere normalized)",
         f"cad_files: patches.stp patches.igs in {units.units}, scale {units.factor:g} per model unit",
         *(f"{k}: {v}" for k, v in {**edges, **hits.summary()}.items()),
+        f"cad_kernel_interferences: {kernel.faulty}",
         f"intersecting_patch_list: {pairs or '-'}",
         f"clean: {not problems}",
     ]
@@ -100,18 +125,24 @@ def export_patches(
     fine = quad_mesh(patches, alpha=tri_alpha)
     tris = fine.triangles()
     edges = edge_report(tris)
-    hits = mesh_intersections(fine.vertices, tris, np.repeat(fine.patch_of_face, 2))
-    problems = mesh_problems(edges, hits, sewn.solid, sewn.free_edges)
-    write_obj(out / "mesh.obj", fine.vertices, tris, comments=_obj_header(edges, hits, units, problems))
+    patch_of_tri = np.repeat(fine.patch_of_face, 2)
+    hits = mesh_intersections(fine.vertices, tris, patch_of_tri)
+    kernel = solid_verdict(sewn)
+    problems = mesh_problems(edges, kernel, sewn.free_edges)
+    write_obj(out / "mesh.obj", fine.vertices, tris, comments=_obj_header(edges, hits, kernel, units, problems))
     colors = np.tile(np.asarray(DEFAULT_COLOR, np.float64), (len(tris), 1))
-    colors[hits.faces] = (0.9, 0.1, 0.1)
+    crossing = sorted({i for pair in kernel.patch_pairs for i in pair} | set(kernel.folded_patches))
+    colors[np.isin(patch_of_tri, crossing)] = (0.95, 0.6, 0.55)  # patches the kernel names
+    colors[hits.faces] = (0.9, 0.1, 0.1)  # where the mesh sees them cross
     save_png(out / "render.png", render_mesh(fine.vertices, tris, size=384, face_colors=colors))
     return {
         "patches": int(len(patches)),
         "quads": int(len(qm.faces)),
         "triangles": int(len(tris)),
         "mesh": {**edges, **hits.summary()},
-        "intersecting_patch_pairs": [list(p) for p in hits.patch_pairs],
+        "cad_kernel": {"self_interferences": kernel.faulty, "patch_pairs": [list(p) for p in kernel.patch_pairs],
+                       "folded_patches": kernel.folded_patches},
+        "intersecting_patch_pairs": [list(p) for p in kernel.patch_pairs],
         "step": "solid" if sewn.solid else f"open shell, {sewn.free_edges} free edges",
         "cad_units": units.describe(),
         "curve_counts": qm.counts.tolist(),
@@ -137,7 +168,11 @@ def predict(
         keep = template.active_patches(parts)
     except ValueError as exc:
         raise UsageError(f"--part: {exc}") from None
-    params = run.model(load_sketches(sketches, run.settings.image_size))[0]
+    seen = load_sketches(sketches, run.settings.image_size, run.framing)
+    params = run.model(seen.tensor)[0]
     save_template(predicted_template(template, params), out / "patches.json")
+    save_inputs(out, seen)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
-    return export_patches(patches, out, units)
+    result = {"input": seen.reports, **export_patches(patches, out, units)}
+    write_json(out / "prediction.json", result)
+    return result

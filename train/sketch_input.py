@@ -59,10 +59,10 @@ class Normalized:
 def decode(data: bytes, name: str = "image") -> np.ndarray:
     """Any image file cv2 reads -> float grey in [0, 1] (paper 1), alpha composited over white."""
     if not data:
-        raise SketchError(f"{name}: empty file")
+        raise SketchError(f"{name}: not a readable image (empty file)")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise SketchError(f"{name}: not a readable image (PNG, JPEG, WebP or TIFF)")
+        raise SketchError(f"{name}: not a readable image (not a PNG, JPEG, WebP or TIFF file)")
     if img.dtype == np.uint8:
         img = img.astype(np.float32) / 255.0
     elif img.dtype == np.uint16:

@@ -62,12 +62,17 @@ def self_interference(shape, fuzzy: float = 0.0) -> tuple[int, list[list]]:
 
 def kernel_verdict(nets: np.ndarray) -> KernelVerdict:
     """Sew bicubic nets ``(P, 4, 4, 3)`` (as the STEP export does) and run the kernel's check."""
-    from OCP.TopAbs import TopAbs_FACE
-
     from train.export.step import quiet_opencascade, sew_patches
 
     quiet_opencascade()
-    sewn = sew_patches(np.asarray(nets, dtype=np.float64))
+    return solid_verdict(sew_patches(np.asarray(nets, dtype=np.float64)))
+
+
+def solid_verdict(sewn) -> KernelVerdict:
+    """The kernel's check of patches already sewn (``train.export.step.SewnPatches``, what
+    ``write_step`` returns), faults mapped to patch indices."""
+    from OCP.TopAbs import TopAbs_FACE
+
     faces = _faces(sewn.shape)
     count, faulty = self_interference(sewn.shape)
     pairs, folded = set(), set()

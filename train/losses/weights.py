@@ -53,11 +53,16 @@ def add_weight_flags(p: argparse.ArgumentParser) -> None:
             p.add_argument(f"--no-{t.name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {t.name} = 0")
 
 
-def weights_from_flags(a: argparse.Namespace, regularizers: dict[str, float]) -> LossWeights:
-    """The table's weights, then the template file's ``regularizers``, then what the flags set."""
+def weight_overrides(a: argparse.Namespace) -> dict[str, float]:
+    """The weights the ``--w-<term>`` / ``--no-<term>`` flags set (only those given)."""
     vals = {t.name: getattr(a, f"w_{t.name}") for t in _TABLE}
     vals = {k: v for k, v in vals.items() if v is not None}
     for t in _TABLE:
         if t.ablation and getattr(a, f"no_{t.name}"):
             vals[t.name] = 0.0
-    return template_weights(regularizers, vals)
+    return vals
+
+
+def weights_from_flags(a: argparse.Namespace, regularizers: dict[str, float]) -> LossWeights:
+    """The table's weights, then the template file's ``regularizers``, then what the flags set."""
+    return template_weights(regularizers, weight_overrides(a))
