@@ -24,13 +24,14 @@ from pipeline.core.model_loop import ModelJob, run_models
 from pipeline.core.records import ModelRef, Progress, write_ok
 from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLES_FILE, sidecar_path
 from pipeline.prepare.line_mesh import line_mesh
-from pipeline.prepare.mesh_checks import check_input, closed_surface_problems
+from pipeline.prepare.mesh_checks import check_input
 from pipeline.sources.mesh_io import load_mesh, sha256_file, write_ply
 from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
 from pipeline.prepare.settings import PrepareSettings
 from pipeline.prepare.sampling import sample_surface
 from pipeline.core.seeding import derive_seed, rng_for
-from pipeline.prepare.watertight import clean_solid, decimate, make_watertight, pull_to_source
+from pipeline.prepare.refine import refine_envelope
+from pipeline.prepare.watertight import make_watertight
 
 __all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
@@ -38,6 +39,9 @@ METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
     "pull": "envelope vertices moved pull_to_source of the way to their closest source point, folds"
             " and hole caps left in place (pipeline.prepare.watertight.pull_to_source)",
+    "refinement_fallback": "a refinement after the envelope (pull, decimation) whose output fails the"
+                           " closed-solid check is undone, its input kept; the path each took is in"
+                           " refinements (pipeline.prepare.refine)",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
@@ -55,9 +59,11 @@ def repair_mesh(
     seed: int,
     timings: dict | None = None,
 ) -> tuple[trimesh.Trimesh, dict]:
-    """Watertight + decimated + verified solid in the source frame, and how it was obtained.
+    """Watertight + refined + verified solid in the source frame, and how it was obtained.
 
     Tries the configured resolution, then coarser ones; raises ModelError listing what failed.
+    The refinements after the envelope fall back to their input when their output fails the
+    check (pipeline.prepare.refine), so only an envelope that fails costs an attempt.
     """
     timings = {} if timings is None else timings
     failures = []
@@ -66,45 +72,42 @@ def repair_mesh(
         t = time.perf_counter()
         wv, wf = make_watertight(vertices, faces, resolution, seed)
         timings["watertight"] = timings.get("watertight", 0.0) + time.perf_counter() - t
-        t = time.perf_counter()
-        wv = pull_to_source(wv, wf, vertices, faces, settings.pull_to_source)
-        timings["pull"] = timings.get("pull", 0.0) + time.perf_counter() - t
-        t = time.perf_counter()
-        dv, df = decimate(wv, wf, settings.max_faces)
-        timings["decimate"] = timings.get("decimate", 0.0) + time.perf_counter() - t
-        t = time.perf_counter()
-        mesh, facts = clean_solid(dv, df, settings.min_component_fraction)
-        problems = closed_surface_problems(facts, settings.max_bodies)
-        if len(mesh.faces) > settings.max_faces:
-            problems.append(f"{len(mesh.faces)} faces after decimation > max_faces {settings.max_faces}")
-        timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - t
-        if not problems:
+        refined = refine_envelope(wv, wf, vertices, faces, settings, timings)
+        if refined.mesh is not None:
             info = {
                 "resolution": resolution,
                 "attempts": attempt + 1,
                 "watertight_faces": int(len(wf)),
-                "output_faces": int(len(mesh.faces)),
+                "output_faces": int(len(refined.mesh.faces)),
                 "rejected": failures,
+                "refinements": refined.paths,
             }
-            return mesh, info
-        failures.append({"resolution": resolution, "problems": problems})
+            return refined.mesh, info
+        failures.append({"resolution": resolution, "problems": refined.problems, "refinements": refined.paths})
         resolution = max(resolution // 2, 100)
     detail = "; ".join(f"resolution {f['resolution']}: {', '.join(f['problems'])}" for f in failures)
     raise ModelError(path, f"repair failed verification: {detail}")
 
 
 TINY_DIAGONAL = 1e-2
+# A model whose bbox centre lies farther from the origin than this many times its own size is
+# repaired centred: at 1e5 units out, a metre-sized part keeps ~11 of float64's digits, and the
+# signed volume (products of coordinates) cancels to noise ("non-positive enclosed volume").
+FAR_OFFSET = 100.0
 
 
 def pre_scale(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray | None, float]:
-    """(centre, factor) mapping a model under TINY_DIAGONAL across to unit size for repair;
-    (None, 1) for every other model, which is repaired exactly as it is."""
+    """(centre, factor) mapping a model for repair to the origin, at unit size when it is under
+    TINY_DIAGONAL across; (None, 1) for a model near the origin at ordinary size (every
+    procedural or ShapeNet model), which is repaired exactly as it is."""
     used = vertices[np.unique(faces)]
     lo, hi = used.min(axis=0), used.max(axis=0)
+    centre = (lo + hi) / 2.0
     diag = float(np.linalg.norm(hi - lo))
-    if diag >= TINY_DIAGONAL:
+    tiny = diag < TINY_DIAGONAL
+    if not tiny and float(np.linalg.norm(centre)) <= FAR_OFFSET * diag:
         return None, 1.0
-    return (lo + hi) / 2.0, diag
+    return centre, diag if tiny else 1.0
 
 
 def _read_sidecar(path: Path) -> dict | None:
@@ -156,7 +159,8 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
     # The Manifold octree seed is keyed like every other random choice (int32 range for the C++).
     wt_seed = derive_seed(settings.seed, "prepare-watertight", ref.category, ref.model_id) % (2**31 - 1)
     # Manifold's tolerances are absolute: a model under ~1e-3 units across (a part in km, a CAD
-    # export in mm read as m) is repaired at unit size, and the pre-scale folded into the record.
+    # export in mm read as m) is repaired at unit size, one far from the origin centred, and the
+    # pre-transform folded into the record.
     c0, k0 = pre_scale(vertices, faces)
     mesh, repair = repair_mesh(path, vertices if c0 is None else (vertices - c0) / k0, faces, settings,
                                wt_seed, timings)
@@ -195,6 +199,7 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
         "line_mesh": {"faces": int(len(lines.faces)), "vertices": int(len(lines.vertices))},
         "method": {**METHOD, "resolution": repair["resolution"], "attempts": repair["attempts"],
                    "rejected_attempts": repair["rejected"], "max_faces": settings.max_faces},
+        "refinements": repair["refinements"],
         "n_samples": int(len(samples)),
         "files": {"mesh": MESH_FILE, "line_mesh": LINE_MESH_FILE, "samples": SAMPLES_FILE},
         "settings": dataclasses.asdict(settings),

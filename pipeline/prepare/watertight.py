@@ -58,15 +58,23 @@ def pull_to_source(
     """
     if fraction <= 0.0:
         return env_vertices
-    sf = np.ascontiguousarray(src_faces, dtype=np.int32)
     sv = np.ascontiguousarray(src_vertices, dtype=np.float64)
+    sf = _faces_with_area(sv, np.ascontiguousarray(src_faces, dtype=np.int32))
+    if len(sf) == 0:
+        return env_vertices
     dist, fid, bary = pcu.closest_points_on_mesh(np.ascontiguousarray(env_vertices, dtype=np.float64), sv, sf)
     target = pcu.interpolate_barycentric_coords(sf, fid, bary, sv)
-    offset = float(np.median(dist))
+    # a point without a finite answer stays where it is (NaN would be cut out with its faces)
+    found = np.isfinite(target).all(axis=1) & np.isfinite(dist)
+    if not found.any():
+        return env_vertices
+    offset = float(np.median(dist[found]))
     if offset <= 0.0:
         return env_vertices
     weight = fraction * np.clip((PULL_NONE * offset - dist) / ((PULL_NONE - PULL_FULL) * offset), 0.0, 1.0)
     step = target - env_vertices
+    if not found.all():
+        weight[~found], step[~found] = 0.0, 0.0
 
     def face_normals(v: np.ndarray) -> np.ndarray:
         n = np.cross(v[env_faces[:, 1]] - v[env_faces[:, 0]], v[env_faces[:, 2]] - v[env_faces[:, 0]])
@@ -86,6 +94,14 @@ def pull_to_source(
         touched = np.unique(env_faces[folding])
         weight[touched] = weight[touched] * 0.5 if rounds < FOLD_ROUNDS else 0.0
         rounds += 1
+
+
+def _faces_with_area(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` without the zero-area ones: their barycentric closest points are NaN (triangle
+    strips' repeated-vertex joins in game meshes). The array itself when every face has area."""
+    tri = vertices[faces]
+    has_area = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).any(axis=1)
+    return faces if has_area.all() else np.ascontiguousarray(faces[has_area])
 
 
 def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
