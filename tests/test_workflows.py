@@ -111,7 +111,7 @@ def test_regenerate_one_category_after_pencil_change(built: Path) -> None:
     upstream = sorted((s.stage_dir("render") / "mug").glob("*/record.json")) + \
         sorted((s.stage_dir("prepare") / "mug").glob("*/record.json"))
     upstream_mtimes = [p.stat().st_mtime_ns for p in upstream]
-    assert build(built, BuildCategory, category="mug", augment_settings='{"grain": 0.1, "darkness": [0.9, 1.0]}')
+    assert build(built, BuildCategory, category="mug", augment_settings='{"grain": 0.1, "tones": [[0.9, 1.0]]}')
     assert shard_state(ds, "knife") == knife_before  # untouched: same mtimes and hashes
     mug_after = shard_state(ds, "mug")
     assert {h for _, h in mug_after.values()}.isdisjoint({h for _, h in mug_before.values()})

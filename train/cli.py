@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     pr.add_argument("--checkpoint", required=True)
     pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
     pr.add_argument("--out", required=True)
-    pr.add_argument("--part", action="append", default=[], help="toggle an optional part, e.g. turbine=off")
+    pr.add_argument("--part", action="append", default=[], help="switch an optional part of the checkpoint's template on or off, e.g. engine=off (airplane; a wrong name is an error listing the template's parts)")
     pr.add_argument("--units", default=DEFAULT_UNITS, choices=sorted(MM_PER_UNIT), help="length unit declared in patches.stp / patches.igs")
     pr.add_argument("--scale", type=float, default=None,
                     help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)")  # fmt: skip

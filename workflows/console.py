@@ -2,8 +2,9 @@
 
 - Luigi's own log goes to ``<work-dir>/luigi.log`` (buffered until the work folder is known).
 - One live progress line: models done / total per stage, models per second and ETA, polled from
-  the work folder once a second (the stages' record files), so it is right with any number of
-  worker processes.
+  the work folder once a second (batch outcome files, and the records of running batches), so it
+  is right with any number of worker processes; a tick's cost does not grow with the number of
+  models (StageCounter).
 - A failed task prints one line at once (task, category, reason).
 - At the end a table per category (built, failed, samples per split) with the first failures and
   their reasons, and a loud last line when anything failed; a bad parameter is one line, no
@@ -15,18 +16,19 @@ from __future__ import annotations
 import atexit
 import logging
 import logging.handlers
+import os
 import sys
 import textwrap
 import threading
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Callable, TextIO
 
 import luigi
 
 from pipeline.build.settings import BuildSettings
 from pipeline.core.records import model_dir
-from pipeline.core.schema import MANIFEST, RECORD, SPLITS
+from pipeline.core.schema import FRAGMENT, MANIFEST, RECORD, SPLITS
 from pipeline.dataset.manifest import read_manifest
 from workflows import steps
 from workflows.validate import BuildParameterError
@@ -48,23 +50,161 @@ def wrap(text: str, indent: str = "    ") -> str:
     return textwrap.fill(text, WIDTH, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
+STAGE_TASKS = {"prepare": "PrepareBatch", "render": "RenderBatch", "augment": "AugmentBatch"}
+# A folder or file looked at less than this long after its last change is looked at again on the
+# next tick: a second change within a coarse timestamp (NFS, FAT: up to 2 s) would not move it.
+RACY_S = 2.0
+
+
 def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int, int]]:
-    """(done, total) models per stage, and categories for "shards". A finished batch counts whole
-    (its upstream failures included); a running one counts the models with a record."""
+    """(done, total) models per stage, and categories for "shards", counted from scratch (one
+    stat per model of an unfinished batch: the reference StageCounter is checked against). A
+    finished batch counts whole (its upstream failures included); a running one counts the
+    models with a record."""
     out = {}
     for stage in STAGES:
+        root = s.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
         done = total = 0
         for lst in listings:
             total += len(lst["models"])
             for b in range(steps.n_batches(len(lst["models"]), s.batch_size)):
                 models = steps.batch_models(s, lst, b)
-                if steps.batch_path(s, stage, lst, b).exists():
+                if (root / lst["category"] / steps.BATCHES / steps.batch_name(s, lst, b)).exists():
                     done += len(models)
                 else:
-                    done += sum((model_dir(s.stage_dir(stage), lst["category"], m["work_id"]) / RECORD).exists()
-                                for m in models)
+                    done += sum((model_dir(root, lst["category"], m["work_id"]) / RECORD).exists() for m in models)
         out[stage] = (done, total)
     out["shards"] = (sum(not steps.category_problems(s, lst) for lst in listings), len(listings))
+    return out
+
+
+def _stamp(path: Path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_ino, st.st_mtime_ns
+
+
+class _Cached:
+    """``read()`` re-run only when one of ``paths`` may have changed: its (inode, mtime) moved,
+    or the last read came within RACY_S of its change. A read that raises caches nothing."""
+
+    def __init__(self, paths: tuple[Path, ...], read: Callable[[], object]) -> None:
+        self.paths, self.read = paths, read
+        self.stamp: tuple | None = None
+        self.read_at = 0.0
+        self.value: object = None
+
+    def get(self) -> object:
+        stamp = tuple(_stamp(p) for p in self.paths)
+        newest = max((k[1] for k in stamp if k is not None), default=0) / 1e9
+        if self.stamp is not None and stamp == self.stamp and self.read_at - newest >= RACY_S:
+            return self.value
+        now = time.time()
+        self.value = self.read()
+        self.stamp, self.read_at = stamp, now
+        return self.value
+
+
+def _names(folder: Path) -> Callable[[], frozenset[str]]:
+    def read() -> frozenset[str]:
+        try:
+            return frozenset(os.listdir(folder))
+        except FileNotFoundError:
+            return frozenset()
+    return read
+
+
+class _StageBatches:
+    """One category's batches in one stage: their outcome files' names, the finished ones, and
+    the running ones with the models that have a record so far."""
+
+    def __init__(self, s: BuildSettings, root: Path, lst: dict) -> None:
+        self.s, self.root, self.lst = s, root, lst
+        n = steps.n_batches(len(lst["models"]), s.batch_size)
+        self.index = {steps.batch_name(s, lst, b): b for b in range(n)}
+        self.sizes = [len(steps.batch_models(s, lst, b)) for b in range(n)]
+        self.names = _Cached((root / lst["category"] / steps.BATCHES,), _names(root / lst["category"] / steps.BATCHES))
+        self.finished: set[int] = set()
+        self.finished_models = 0
+        self.running: dict[int, tuple[list[Path], set[int]]] = {}  # batch -> (record paths, indices found)
+
+    def start(self, batch: int) -> None:
+        if batch not in self.finished and batch not in self.running:
+            models = steps.batch_models(self.s, self.lst, batch)
+            self.running[batch] = ([model_dir(self.root, self.lst["category"], m["work_id"]) / RECORD
+                                    for m in models], set())
+
+    def done(self) -> int:
+        names = self.names.get()
+        finished = {self.index[n] for n in names if n in self.index}
+        if finished != self.finished:  # only when a batch finished: the sum is O(batches)
+            self.finished, self.finished_models = finished, sum(self.sizes[b] for b in finished)
+        partial = 0
+        for b in list(self.running):
+            paths, found = self.running[b]
+            if b in finished:
+                del self.running[b]
+                continue
+            # a record, once written, stays: stat only the models still without one
+            found.update(i for i, p in enumerate(paths) if i not in found and p.exists())
+            partial += len(found)
+        return self.finished_models + partial
+
+
+class StageCounter:
+    """stage_counts(), kept up to date at a cost per tick that does not grow with the models.
+
+    Paths are derived once. A tick stats each category's ``_batches`` folder per stage and
+    re-lists it only when it changed; the running batches are the ones whose Luigi task has a
+    ``<work>/_runs/<task id>/`` entry (written at its start by any worker, on any machine sharing
+    the work folder) and no outcome file yet; only their models' records are looked at. So
+    records of a batch that no task of this build's settings started are not counted until the
+    batch finishes. Shards: a category is re-checked only when its folder or category.json changed.
+    """
+
+    def __init__(self, s: BuildSettings, listings: list[dict], task_ids: dict[str, tuple[str, str, int]]) -> None:
+        self.s, self.listings, self.task_ids = s, listings, task_ids
+        self.total = sum(len(lst["models"]) for lst in listings)
+        self.stages = {stage: {lst["category"]: _StageBatches(s, root, lst) for lst in listings}
+                       for stage, root in ((x, s.stage_dir(x)) for x in STAGES)}
+        runs = Path(s.work_dir) / steps.RUNS
+        self.runs = _Cached((runs,), _names(runs))
+        self.runs_seen: frozenset[str] = frozenset()
+        self.shards = [self._shards_current(lst) for lst in listings]
+
+    def _shards_current(self, lst: dict) -> _Cached:
+        cat = Path(self.s.dataset_dir) / lst["category"]
+        return _Cached((cat, cat / FRAGMENT), lambda: not steps.category_problems(self.s, lst))
+
+    def counts(self) -> dict[str, tuple[int, int]]:
+        runs = self.runs.get()
+        for task_id in runs - self.runs_seen:  # tasks started since the last tick
+            if task_id in self.task_ids:
+                stage, category, batch = self.task_ids[task_id]
+                self.stages[stage][category].start(batch)
+        self.runs_seen = runs
+        out = {stage: (sum(b.done() for b in by_cat.values()), self.total) for stage, by_cat in self.stages.items()}
+        out["shards"] = (sum(bool(c.get()) for c in self.shards), len(self.listings))
+        return out
+
+
+def batch_task_ids(root: luigi.Task, listings: list[dict]) -> dict[str, tuple[str, str, int]]:
+    """Luigi task id -> (stage, category, batch) of every batch task under ``root``, computed the
+    way Luigi names a task (one task instance made per stage and category, not per batch)."""
+    from luigi.task import task_id_str
+
+    from workflows import tasks
+
+    out = {}
+    for lst in listings:
+        shards = root.clone(tasks.CategoryShards, category=lst["category"], listing=lst["key"])
+        for stage, family in STAGE_TASKS.items():
+            cls = getattr(tasks, family)
+            params = shards.clone(cls, batch=0).to_str_params(only_significant=True, only_public=True)
+            for b in range(steps.n_batches(len(lst["models"]), root.build.batch_size)):
+                out[task_id_str(cls.get_task_family(), {**params, "batch": str(b)})] = (stage, lst["category"], b)
     return out
 
 
@@ -111,6 +251,8 @@ class Console:
         self.last = ""
         self.lock = threading.Lock()
         self.failures: list[str] = []
+        self.counter: StageCounter | None = None
+        self.count_lock = threading.Lock()
 
     # ---- set-up
     @classmethod
@@ -161,6 +303,7 @@ class Console:
         self.buffer.flush()
         self.buffer.flushLevel = logging.DEBUG  # from now on every record goes straight through
         self.listings = root.listings()
+        self.counter = None
         self.write(f"building {', '.join(root.category_list())} from {s.source} "
                    f"(Luigi log: {self.log_path})", final=True)
         self.thread = threading.Thread(target=self._poll, daemon=True)
@@ -177,12 +320,18 @@ class Console:
             self.out.flush()
             self.last = text
 
+    def _counts(self) -> dict[str, tuple[int, int]]:
+        with self.count_lock:  # finish() may count while a slow tick is still running
+            if self.counter is None:  # the first tick: paths derived and batches counted once
+                self.counter = StageCounter(self.root.build, self.listings, batch_task_ids(self.root, self.listings))
+            return self.counter.counts()
+
     def _poll(self) -> None:
         progress = Progress()
         next_plain = 0.0
         while not self.stop.wait(1.0):
             try:
-                line = progress.line(stage_counts(self.root.build, self.listings), time.time())
+                line = progress.line(self._counts(), time.time())
             except (OSError, ValueError):
                 continue  # a file replaced while being read: next tick
             if self.tty or time.time() >= next_plain:  # a log file gets a line every 15 s
@@ -205,7 +354,7 @@ class Console:
         s = self.root.build
         if self.thread is not None and self.listings:
             try:
-                self.write(Progress().line(stage_counts(s, self.listings), time.time()), final=True)
+                self.write(Progress().line(self._counts(), time.time()), final=True)
             except (OSError, ValueError):
                 pass
         complete = self.root.complete()

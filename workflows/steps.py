@@ -41,8 +41,14 @@ def batch_models(s: BuildSettings, lst: dict, batch: int) -> list[dict]:
 def batch_path(s: BuildSettings, stage: str, lst: dict, batch: int) -> Path:
     """A batch's outcome file, named by the work ids it holds: a batch whose models (or their
     content) changed is a new batch, an unchanged one stays done whatever else was added."""
+    return s.stage_dir(stage) / lst["category"] / BATCHES / batch_name(s, lst, batch)
+
+
+def batch_name(s: BuildSettings, lst: dict, batch: int) -> str:
+    """The file name of ``batch_path`` (the same in every stage), without the settings' stage key:
+    the console names every batch once and looks the folder up."""
     ids = [m["work_id"] for m in batch_models(s, lst, batch)]
-    return s.stage_dir(stage) / lst["category"] / BATCHES / f"{batch:05d}-{settings_hash({'ids': ids})}.json"
+    return f"{batch:05d}-{settings_hash({'ids': ids})}.json"
 
 
 def n_batches(n_models: int, batch_size: int) -> int:
