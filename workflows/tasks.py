@@ -51,8 +51,10 @@ class _ListedTask(_BuildTask):
     category = luigi.Parameter()
     listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")
 
-    @property
+    @functools.cached_property
     def lst(self) -> dict:
+        # read once per task: a list is immutable under its key, and the scheduler asks every
+        # task for its output() (which needs the list) before anything runs
         return read_listing(self.build, self.category, self.listing)
 
 
