@@ -213,3 +213,23 @@ def test_freestyle_renders_names_with_braces_and_backslashes(tmp_path: Path) -> 
     assert luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")
     mug = json.loads((tmp_path / "ds" / "manifest.json").read_text())["categories"]["mug"]
     assert mug["models_built"] == 3 and mug["failed"] == []
+
+
+def test_verify_never_reads_outside_the_dataset_folder(tmp_path: Path) -> None:
+    """A manifest from elsewhere naming ../ paths is reported, not followed."""
+    import json
+
+    from pipeline.dataset.manifest import content_checksum
+    from pipeline.dataset.verify import verify_dataset
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (tmp_path / "secret").mkdir()
+    (tmp_path / "secret" / "train-00000.tar").write_bytes(b"x")
+    entry = {"splits": {s: {"samples": 1, "shards": [{"name": "../secret/train-00000.tar", "bytes": 1,
+                                                       "sha256": "0", "samples": 1}]} for s in ("train", "val", "test")}}
+    body = {"categories": {"../secret": entry, "mug": entry}}
+    (ds / "manifest.json").write_text(json.dumps({**body, "checksum": content_checksum(body)}))
+    problems = verify_dataset(ds)
+    assert any("category '../secret' is not a plain folder name; not read" in p for p in problems)
+    assert any("shard name '../secret/train-00000.tar' is not a shard file name; not read" in p for p in problems)

@@ -12,7 +12,8 @@ import json
 import tarfile
 from pathlib import Path
 
-from pipeline.core.schema import FRAGMENT, MANIFEST, META_MEMBER, REQUIRED_MEMBERS, SPLITS, sketch_view_variant
+from pipeline.core.names import UnsafePath, inside, is_safe_component
+from pipeline.core.schema import FRAGMENT, MANIFEST, META_MEMBER, REQUIRED_MEMBERS, SHARD_RE, SPLITS, sketch_view_variant
 from pipeline.dataset.manifest import content_checksum, read_fragment
 from pipeline.dataset.shards import file_sha256, iter_shard, list_shards
 
@@ -67,6 +68,10 @@ def verify_dataset(dataset_dir: Path) -> list[str]:
     if manifest.get("checksum") != content_checksum(manifest):
         problems.append(f"{MANIFEST}: checksum does not match its content")
     for category, entry in sorted(manifest.get("categories", {}).items()):
+        # a manifest from elsewhere must not make us read outside the dataset folder
+        if not is_safe_component(category):
+            problems.append(f"{MANIFEST}: category {category!r} is not a plain folder name; not read")
+            continue
         cat_dir = dataset_dir / category
         frag = read_fragment(cat_dir)
         if frag != entry:
@@ -78,8 +83,15 @@ def verify_dataset(dataset_dir: Path) -> list[str]:
         listed: set[str] = set()
         for split in SPLITS:
             for info in entry["splits"][split]["shards"]:
-                listed.add(info["name"])
-                problems += _check_shard(cat_dir / info["name"], info, split)
+                name = info.get("name")
+                if not (isinstance(name, str) and SHARD_RE.fullmatch(name)):
+                    problems.append(f"{category}: shard name {name!r} is not a shard file name; not read")
+                    continue
+                listed.add(name)
+                try:
+                    problems += _check_shard(inside(dataset_dir, cat_dir / name), info, split)
+                except UnsafePath as exc:  # a link out of the dataset folder
+                    problems.append(f"{category}/{name}: {exc}; not read")
         for p in list_shards(cat_dir):
             if p.name not in listed:
                 problems.append(f"{category}/{p.name}: shard not listed in the manifest")
