@@ -93,7 +93,9 @@ def test_a_rank_failing_alone_ends_the_run_instead_of_hanging(tmp_path):
     except mp.ProcessRaisedException:  # the other rank, cut off when the failed one left
         pass
     said = [json.loads(p.read_text()).get("error", "") for p in report.iterdir()]
-    assert said == [f"{shard}: unreadable shard (ReadError: unexpected end of data)"]
+    # the failing rank names the shard; the other is cut off, or (on a slow machine) has reached
+    # the same shard by then and names it too: never another error, never a hang
+    assert said and set(said) == {f"{shard}: unreadable shard (ReadError: unexpected end of data)"}
 
 
 @pytest.mark.slow
