@@ -19,10 +19,9 @@ batch step writes its outcome file with every model "failed: no-op", CategorySha
 shards step (nothing to pack), and the failure threshold is switched off so the root succeeds.
 What is left is Luigi (scheduling, complete() checks, events) and the tasks' own code (parameter
 checks, outputs, run records). Reports the task count, wall and CPU seconds, per task, and the
-re-run of the finished build. ``--cached-listing``: the same with each task's model list derived
-once (a what-if patched here, to size that follow-up).
+re-run of the finished build.
 
-    .venv/bin/python bench/bench_console.py --schedule --schedule-runs 3 [--cached-listing]
+    .venv/bin/python bench/bench_console.py --schedule --schedule-runs 3
 """
 
 from __future__ import annotations
@@ -159,24 +158,12 @@ def _no_op_steps() -> None:
     assert tasks.steps is steps
 
 
-def _cached_listing() -> None:
-    """What-if for ``--cached-listing``: each task's ``lst`` re-derives its category's list on
-    every call (procedural: the whole list is rebuilt); here one per (category, key)."""
-    import functools
-
-    from workflows import tasks
-
-    read = tasks.read_listing
-    cached = functools.lru_cache(maxsize=None)(lambda s, category, key: read(s, category, key))
-    tasks.read_listing = lambda s, category, key: cached(s, category, key)
 
 
 def schedule(args) -> None:
     import luigi
 
     _no_op_steps()
-    if args.cached_listing:
-        _cached_listing()
     events: dict[str, list[float]] = {}
     for ev in (luigi.Event.START, luigi.Event.SUCCESS, luigi.Event.DEPENDENCY_PRESENT, luigi.Event.FAILURE):
         luigi.Task.event_handler(ev)(lambda *a, _ev=ev: events.setdefault(_ev, []).append(time.perf_counter()))
@@ -216,8 +203,6 @@ def main() -> None:
     p.add_argument("--old", type=Path, help="a console.py whose stage_counts is timed too")
     p.add_argument("--old-repeats", type=int, default=1)
     p.add_argument("--schedule-runs", type=int, default=1)
-    p.add_argument("--cached-listing", action="store_true",
-                   help="--schedule what-if: each task's model list derived once, not per call")
     args = p.parse_args()
     if args.schedule:
         sys.path.insert(0, str(ROOT / "bench"))

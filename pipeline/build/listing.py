@@ -122,13 +122,20 @@ def work_id(model_id: str, sha: str) -> str:
 
 
 def _procedural(s: BuildSettings, category: str) -> dict:
+    return _procedural_list(str(s.work_dir), s.seed, s.limit, category, procedural_tag(s))
+
+
+@functools.lru_cache(maxsize=64)
+def _procedural_list(work_dir: str, seed: int, limit: int | None, category: str, key: str) -> dict:
+    # cached: every batch task of a category asks for it (the scheduler's graph walk: 2,448 tasks
+    # at ShapeNet's size); callers only read it
     from pipeline.sources.layouts import DEFAULT_PROCEDURAL_COUNT, procedural_source_dir
 
-    folder = procedural_source_dir(Path(s.work_dir), s.seed) / category
-    count = s.limit if s.limit is not None else DEFAULT_PROCEDURAL_COUNT
+    folder = procedural_source_dir(Path(work_dir), seed) / category
+    count = limit if limit is not None else DEFAULT_PROCEDURAL_COUNT
     models = [{"model_id": f"{i:05d}", "work_id": f"{i:05d}", "path": str(folder / f"{i:05d}.obj"),
                "source": "procedural"} for i in range(count)]
-    return {"category": category, "key": procedural_tag(s), "models": models}
+    return {"category": category, "key": key, "models": models}
 
 
 def mark_duplicates(models: list[dict], keys: list[FileKey], root: str) -> None:
