@@ -191,7 +191,7 @@ def test_collision_zero_for_patches_that_only_share_an_edge():
 def _two_patch_template(pts) -> Template:
     """Patches (0,1,2,3) and (0,3,5,4) sharing the curve 3→0 (straight cubic curves)."""
     points = [FreePoint(tuple(float(v) for v in p)) for p in pts]
-    curves, ids = [], {}
+    curves = []
 
     def curve(a, b):
         pa, pb = np.array(pts[a], float), np.array(pts[b], float)

@@ -42,7 +42,7 @@ def test_unit_sphere_fits_frame(ortho):
 def test_projection_matches_camera_frame():
     s = RenderSettings(views=3)
     for v in rig(s, 0, "gun", "b", SPHERE):
-        R, t = v.world_to_camera[:3, :3], v.world_to_camera[:3, 3]
+        R = v.world_to_camera[:3, :3]
         assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
         # the origin projects to the image centre, world up projects upward (v decreases)
         c = project(v.projection, np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0]]))

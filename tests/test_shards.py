@@ -80,7 +80,7 @@ def test_shards_bytes_fixed_and_readable_by_webdataset(tmp_path: Path) -> None:
     models = [make_model_dirs(tmp_path, "mug", f"{i:05d}") for i in range(12)]
     st = ShardSettings(max_samples_per_shard=3, split_fractions=(0.5, 0.25, 0.25))
     a = write_category_shards("mug", models, tmp_path / "a" / "mug", st, 0, "h")
-    b = write_category_shards("mug", models, tmp_path / "b" / "mug", st, 0, "h")
+    write_category_shards("mug", models, tmp_path / "b" / "mug", st, 0, "h")
     names_a = [p.name for p in list_shards(tmp_path / "a" / "mug")]
     assert names_a == [p.name for p in list_shards(tmp_path / "b" / "mug")]
     for n in names_a:

@@ -271,7 +271,7 @@ def renamed(tmp_path_factory) -> dict:
 
 
 def test_renamed_category_leaves_manifest_and_totals(renamed: dict, tmp_path: Path) -> None:
-    root, ds = renamed["root"], renamed["root"] / "ds"
+    ds = renamed["root"] / "ds"
     assert sorted(renamed["before"]["categories"]) == ["knife", "mug"]
     m = read_manifest(ds)
     assert sorted(m["categories"]) == ["blade", "mug"] and m["totals"]["categories"] == 2

@@ -28,12 +28,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
 from train.templates.lattice import Box
+
+if TYPE_CHECKING:
+    from train.templates.user import ModelBoxes
 
 TOP_KEYS = {"format", "version", "category", "symmetry", "hollow", "part_groups", "cuboids", "models"}
 MODEL_KEYS = {"id", "cuboids"}
@@ -264,7 +267,7 @@ def _centre_x(boxes: list[Box]) -> float:
     return float((min(b.lo[0] for b in boxes) + max(b.hi[0] for b in boxes)) / 2)
 
 
-def file_models(cf: CuboidFile, n_points: int = 2048, seed: int = 0) -> list["ModelBoxes"]:
+def file_models(cf: CuboidFile, n_points: int = 2048, seed: int = 0) -> list[ModelBoxes]:
     """The file's models in the normalized frame, with samples of their box unions (for the median)."""
     from pipeline.core.seeding import rng_for
     from train.templates.box_surface import box_union_samples
