@@ -107,7 +107,7 @@ def test_closing_patches_on_only_when_part_absent() -> None:
     tpl = load_template("knife")
     optional = {i for ids in tpl.optional_parts.values() for i in ids}
     closing = [i for i in range(tpl.num_patches) if i not in optional][:2]
-    tpl.closing_patches = {"guard": closing}  # the agreed field; which patches close is irrelevant here
+    tpl = dataclasses.replace(tpl, closing_patches={"guard": closing})  # which patches close is irrelevant here
     obj = Objective(tpl, n_points=500)
     guard = tpl.optional_parts["guard"]
     assert obj.mask_for(["blade", "handle"])[closing].all() and not obj.mask_for(["blade", "handle"])[guard].any()

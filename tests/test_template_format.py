@@ -1,3 +1,4 @@
+import dataclasses
 """Template format: sphere templates, junction curves, JSON round trip, symmetry, bad input."""
 
 import json
@@ -140,8 +141,7 @@ def test_junction_template_gradcheck_and_adjacency():
 
 
 def test_json_round_trip_is_byte_stable(tmp_path):
-    t = junction_template()
-    t.find_symmetry(plane_x=1.0, tol=1e-6)
+    t = junction_template().with_symmetry(plane_x=1.0, tol=1e-6)
     path = tmp_path / "t.json"
     save_template(t, path)
     again = load_template_file(path)
@@ -153,9 +153,9 @@ def test_json_round_trip_is_byte_stable(tmp_path):
     assert load_template(str(path)).num_params == t.num_params
 
 
-def test_find_symmetry_pairs_points_across_the_plane():
+def test_mirror_symmetry_pairs_points_across_the_plane():
     t = junction_template()
-    sym = t.find_symmetry(plane_x=1.0, tol=1e-6)
+    sym = t.mirror_symmetry(plane_x=1.0, tol=1e-6)
     pos = t.points_from_params(t.initial_params(torch.float64)[None])[0]
     assert (0, 2) in sym.pairs and (3, 4) in sym.pairs  # (0,0)↔(2,0), (0,1)↔(2,1)
     for i, j in sym.pairs:
@@ -180,9 +180,8 @@ def test_bad_templates_raise_named_errors(tmp_path):
 
 
 def test_active_patches_follow_optional_and_closing_parts(tmp_path):
-    t = junction_template()
-    t.closing_patches = {"right": [1]}  # a stand-in: patch 1 only while "right" is off
-    t.part_groups = {"body": ["a", "b"], "side": ["c"]}
+    t = dataclasses.replace(junction_template(), closing_patches={"right": [1]},  # stand-in: patch 1 only while "right" is off
+                            part_groups={"body": ["a", "b"], "side": ["c"]})
     assert t.part_names == ["right"]
     assert t.active_patches() == [0, 2] and t.active_patches({"right": True}) == [0, 2]
     assert t.active_patches({"right": False}) == [0, 1]
@@ -197,3 +196,12 @@ def test_active_patches_follow_optional_and_closing_parts(tmp_path):
         Template.from_json(data)
     # templates without them keep the old file layout
     assert "closing_patches" not in junction_template().to_json()
+
+
+def test_a_template_is_never_changed_after_it_is_made():
+    t = junction_template()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.symmetry = None
+    with pytest.raises(TemplateError, match="bad patch index"):  # a changed copy is validated again
+        dataclasses.replace(t, optional_parts={"right": [99]})
+    assert t.with_symmetry(plane_x=1.0, tol=1e-6).symmetry is not None and t.symmetry is None

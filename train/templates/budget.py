@@ -111,10 +111,8 @@ def candidates(
 
 
 def mirror_complete(tpl: Template) -> bool:
-    """Does every point have a mirror partner across x = 0 (or lie on it)? Leaves ``tpl`` as is."""
-    declared = tpl.symmetry
-    sym = tpl.find_symmetry(0.0, tol=1e-6)
-    tpl.symmetry = declared
+    """Does every point have a mirror partner across x = 0 (or lie on it)?"""
+    sym = tpl.mirror_symmetry(0.0, tol=1e-6)
     return 2 * len(sym.pairs) + len(sym.self_points) == tpl.num_points
 
 

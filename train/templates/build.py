@@ -14,6 +14,8 @@ With a patch budget (``BuildSettings.budget``, e.g. the paper's counts in
 
 from __future__ import annotations
 
+import dataclasses
+
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -140,9 +142,8 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
         pick = within_budget(candidates(med.boxes, med.cloud, med.template_settings, category, settings.seed), budget)
         tpl, dist_to_median = pick.template, pick.chamfer
         meta.update(patch_budget=budget, min_part_volume=pick.coarsening.min_volume, merge_labels=pick.coarsening.merge_labels)
-    tpl.metadata.update(meta, chamfer_to_median=round(float(dist_to_median), 6))
-    tpl.regularizers = category_regularizers(category)
-    tpl.match_normals = category_match_normals(category)
+    tpl = dataclasses.replace(tpl, metadata={**tpl.metadata, **meta, "chamfer_to_median": round(float(dist_to_median), 6)},
+                              regularizers=category_regularizers(category), match_normals=category_match_normals(category))
     return CategoryResult(tpl, med.model_ids, med.chosen, med.chamfer_sums, med.failures)
 
 

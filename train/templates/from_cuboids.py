@@ -13,6 +13,8 @@ combination of optional parts is a closed surface, as in the paper's turbine cas
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -67,16 +69,15 @@ def template_from_boxes(
     ps, lattice = patch_set_from_boxes(boxes, settings)
     labels = lattice.labels
     tpl = template_from_patch_set(ps, labels, name=name, optional_labels=settings.optional_labels)
-    tpl.part_groups = part_groups(tpl.patch_labels, settings.part_groups)
-    tpl.metadata = {
+    tpl = dataclasses.replace(tpl, part_groups=part_groups(tpl.patch_labels, settings.part_groups), metadata={
         "construction": "cuboids",
         "lattice_lines": [len(ln) for ln in lattice.lines],
         "filled_cells": int(lattice.filled),
         "snap_tol": settings.snap_tol,
         **(metadata or {}),
-    }
+    })
     if settings.symmetric and settings.declare_symmetry:
-        tpl.find_symmetry(0.0, tol=1e-6)
+        tpl = tpl.with_symmetry(0.0, tol=1e-6)
     return tpl
 
 

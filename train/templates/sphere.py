@@ -70,8 +70,7 @@ def sphere_template(n: int) -> Template:
                     patches.append(Patch(tuple(c for c, _ in cs), tuple(r for _, r in cs), label))
     tpl = Template(points=points, curves=curves, patches=patches, name=f"sphere{6 * n * n}",
                    metadata={"kind": "sphere", "subdivisions": n})
-    tpl.find_symmetry(plane_x=0.0, tol=1e-6)
-    return tpl
+    return tpl.with_symmetry(plane_x=0.0, tol=1e-6)
 
 
 def sphere24() -> Template:

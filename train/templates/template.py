@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -113,8 +113,11 @@ class TemplateError(ValueError):
     """The template is inconsistent (bad reference, open patch loop, junction cycle)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Template:
+    """A template, validated and compiled once when made; never changed afterwards: a changed
+    template is a new one (``dataclasses.replace`` validates it again, ``with_symmetry``)."""
+
     points: list[FreePoint | JunctionPoint]
     curves: list[Curve]
     patches: list[Patch]
@@ -175,7 +178,7 @@ class Template:
         for p in self.points:
             offsets.append(off)
             off += 3 if isinstance(p, FreePoint) else 1
-        self._offsets = offsets
+        object.__setattr__(self, "_offsets", offsets)
         for i, p in enumerate(self.points):
             if isinstance(p, JunctionPoint):
                 if not 0 <= p.curve < n_cur:
@@ -188,7 +191,7 @@ class Template:
                 raise TemplateError(f"curve {ci}: needs 4 valid points or parent/start/end")
             if c.is_sub and not 0 <= c.parent < n_cur:
                 raise TemplateError(f"curve {ci}: missing parent {c.parent}")
-        self._ends = [self._curve_ends(ci) for ci in range(n_cur)]
+        object.__setattr__(self, "_ends", [self._curve_ends(ci) for ci in range(n_cur)])
         for ci, c in enumerate(self.curves):
             if c.is_sub:
                 for r in (c.start, c.end):
@@ -213,9 +216,9 @@ class Template:
         grouped = [lab for labels in self.part_groups.values() for lab in labels]
         if len(grouped) != len(set(grouped)):
             raise TemplateError("part_groups: a label is in more than one group")
-        self._schedule = self._make_schedule()
-        self._boundary_cache: dict[int, set[int]] = {}
-        self._dev_cache: dict[str, Any] = {}
+        object.__setattr__(self, "_schedule", self._make_schedule())
+        object.__setattr__(self, "_boundary_cache", {})
+        object.__setattr__(self, "_dev_cache", {})
 
     def _curve_ends(self, ci: int) -> tuple[int, int]:
         c = self.curves[ci]
@@ -431,8 +434,12 @@ class Template:
             pairs += [[k, k] for k in self.symmetry.self_points]
         return torch.tensor(pairs, dtype=torch.long).reshape(-1, 2)
 
-    def find_symmetry(self, plane_x: float = 0.0, tol: float = 1e-4) -> Symmetry:
-        """Pair points mirrored across x = plane_x (within ``tol``), store and return the result.
+    def with_symmetry(self, plane_x: float = 0.0, tol: float = 1e-4) -> "Template":
+        """This template with its mirror symmetry across x = plane_x declared (``mirror_symmetry``)."""
+        return replace(self, symmetry=self.mirror_symmetry(plane_x, tol))
+
+    def mirror_symmetry(self, plane_x: float = 0.0, tol: float = 1e-4) -> Symmetry:
+        """Points paired across x = plane_x (within ``tol``).
 
         Points of the same kind only (free with free, junction with junction); a point within
         ``tol`` of the plane is self-symmetric. Points with no mirror partner are left out.
@@ -454,8 +461,7 @@ class Template:
                 if j != i and kinds[j] == kinds[i] and i < j:
                     pairs.append((i, j))
                     break
-        self.symmetry = Symmetry(float(plane_x), tuple(pairs), tuple(selfs))
-        return self.symmetry
+        return Symmetry(float(plane_x), tuple(pairs), tuple(selfs))
 
     # ---- JSON --------------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:

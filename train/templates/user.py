@@ -176,12 +176,13 @@ def build_user_template(models: Sequence[ModelBoxes], name: str, settings: UserS
         problems = closed_manifold_problems(tpl, tpl.active_patches(combo))
         if problems:  # the lattice construction guarantees this; a failure is a bug, not bad input
             raise RuntimeError(f"{name}: parts {combo}: template is not closed: {problems[:3]}")
-    tpl.metadata.update(
+    meta = dict(
         category=name, source="user", origin=sorted({m.origin for m in models if m.origin}), n_models=len(models),
         median_model=median.model_id, presence={k: round(v, 4) for k, v in presence.items()},
         presence_threshold=settings.presence_threshold, dropped_parts=dropped, borrowed_parts=borrowed,
         mirror_pairs=len(rep.pairs), chamfer_to_median=round(float(to_median), 6), **extra)
-    tpl.regularizers = {"template_normal": 1e-4, **({"symmetry": 1.0} if symmetric else {})}
-    tpl.match_normals = MATCH_NORMALS if settings.hollow else 0.0
+    tpl = dataclasses.replace(tpl, metadata={**tpl.metadata, **meta},
+                              regularizers={"template_normal": 1e-4, **({"symmetry": 1.0} if symmetric else {})},
+                              match_normals=MATCH_NORMALS if settings.hollow else 0.0)
     return UserResult(tpl, median.model_id, presence, required, optional, dropped, borrowed, symmetric, len(rep.pairs),
                       {m.model_id: float(s) for m, s in zip(models, sums)}, failures)
