@@ -184,3 +184,11 @@ def test_unknown_or_negative_regularizer_is_a_clear_error() -> None:
     knife = load_template("knife")
     with pytest.raises(TemplateError, match="regularizer 'symmetry': expected a weight >= 0"):
         dataclasses.replace(knife, regularizers={"symmetry": -1.0})
+
+
+def test_labels_foreign_to_the_template_switch_no_part_off() -> None:
+    """A folder's own part names (a chair's "seat", "leg") under the knife template: unknown,
+    so every part counts as present, not as absent."""
+    obj = Objective(load_template("knife"), n_points=500)
+    assert torch.equal(obj.mask_for(["seat", "leg"]), obj.mask_for(None))
+    assert not torch.equal(obj.mask_for(["blade", "handle"]), obj.mask_for(None))  # the template's names still count

@@ -12,8 +12,8 @@ from train.templates.checks import conforming_mesh, part_combinations
 from train.templates.cuboid_file import CuboidFileError, file_models, read_cuboid_file
 from train.templates.lattice import Box
 from train.templates.mesh_boxes import PartSettings, merge_coincident, model_boxes, part_boxes, source_models
-from train.templates.mesh_parts import read_segmentation
-from train.templates.part_names import map_name, normalize_name
+from pipeline.sources.part_names import map_name, normalize_name
+from pipeline.sources.segmentation import read_segmentation
 from train.templates.symmetry import mirror_pairs
 from train.templates.user import TemplateInputError, UserSettings, build_user_template
 
@@ -249,7 +249,7 @@ def test_inconsistent_labels_name_the_model_and_a_part_map_fixes_them(tmp_path):
         build_user_template(models, "chair")
     pm = tmp_path / "map.yaml"
     pm.write_text("sitz: seat\nlehne: back\nbein*: leg\n")
-    from train.templates.part_names import read_part_map
+    from pipeline.sources.part_names import read_part_map
 
     models, _ = source_models(str(root), "chair", part_map=read_part_map(pm))
     assert {b.label for b in models[-1].boxes} == {"seat", "back", "leg"}

@@ -60,7 +60,11 @@ class Objective:
 
     def mask_for(self, present: list[str] | None) -> Tensor:
         """(P,) bool patch mask for a model with the part families ``present`` (None: all), from
-        the template's own rule (``Template.active_patches``)."""
+        the template's own rule (``Template.active_patches``). Labels that name none of the
+        template's parts (a folder's own part names under a built-in template) say nothing about
+        them: every part counts as present then, as without labels."""
+        if present is not None and not set(present) & set(self.template.patch_labels):
+            present = None
         parts = {p: present is None or p in present for p in self.template.part_names}
         mask = torch.zeros(self.template.num_patches, dtype=torch.bool)
         mask[self.template.active_patches(parts)] = True

@@ -108,7 +108,7 @@ def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     copies = {m["work_id"]: duplicate_outcome(m) for m in models if duplicate_outcome(m)}  # failed, never built
     todo = [m for m in models if m["work_id"] not in copies]
     records = iter(prepare_batch([model_ref(lst["category"], m) for m in todo], s.stage_dir("prepare"),
-                                 s.prepare_settings(), progress))
+                                 s.prepare_settings(), progress, s.part_label_settings()))
     return _write_batch(s, "prepare", lst, batch,
                         [copies.get(m["work_id"]) or _outcome(m, "prepare", next(records)) for m in models], t0)
 

@@ -11,7 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from pipeline.build.settings import BuildSettings
+from pipeline.build.settings import PART_LABEL_CHOICES, BuildSettings
 from pipeline.core.settings_io import SettingError, flag_name, from_dict
 
 
@@ -55,9 +55,28 @@ def check_settings(s: BuildSettings) -> None:
             getattr(s, method)()
         except (ValueError, TypeError) as exc:  # json.JSONDecodeError is a ValueError
             raise BuildParameterError(f"{flag(attr)}: {exc}") from None
+    _check_part_labels(s)
     sh = s.shard_settings()
     if sh.max_samples_per_shard < 1 or sh.max_bytes_per_shard < 1 or sh.points < 1:
         raise BuildParameterError("--shard-settings: max_samples_per_shard, max_bytes_per_shard and points must be >= 1")
+
+
+def _check_part_labels(s: BuildSettings) -> None:
+    """The part label flags name a file source's segmentation; the procedural source's parts
+    come from the generator, so there they would silently do nothing."""
+    if s.is_procedural:
+        for attr in ("part_map", "labels_dir"):
+            if getattr(s, attr):
+                raise BuildParameterError(f"{flag(attr)}: applies to a file source (--source DIR); "
+                                          "procedural parts come from the generator")
+        return
+    if s.labels_dir and not Path(s.labels_dir).is_dir():
+        raise BuildParameterError(f"{flag('labels_dir')}: {s.labels_dir!r} is not a folder")
+    try:
+        s.part_label_settings()
+    except ValueError as exc:  # PartMapError is one
+        attr = "part_labels" if s.part_labels not in PART_LABEL_CHOICES else "part_map"
+        raise BuildParameterError(f"{flag(attr)}: {exc}") from None
 
 
 def check_fraction(value: float) -> None:

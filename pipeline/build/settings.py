@@ -1,6 +1,7 @@
 """User-facing build settings → per-stage settings, stage keys and stage folders.
 
-Stage keys chain: source ← (source, seed); prepare ← prepare settings + source key; render ←
+Stage keys chain: source ← (source, seed); prepare ← prepare settings (+ part label settings for
+a file source) + source key; render ←
 render settings + seed + prepare key; augment ← augment settings + seed + render key; shards ←
 shard settings + seed + augment key. Changing the pencil settings therefore changes only the
 augment and shard keys: prepared meshes and renders are found again under their old keys.
@@ -9,6 +10,7 @@ augment and shard keys: prepared meshes and renders are found again under their 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from pathlib import Path
 
@@ -17,10 +19,28 @@ from pipeline.core.settings_io import from_dict, parse_json_object
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
+from pipeline.sources.part_names import read_part_map
+from pipeline.sources.segmentation import PartLabelSettings
 from render.settings import RenderSettings
 
 DEFAULT_WORK_DIR = Path("data/work")
 DEFAULT_DATASET_DIR = Path("data/dataset")
+PART_LABEL_CHOICES = ("segmentation", "none")
+
+
+@functools.lru_cache(maxsize=16)
+def _read_map(path: str, mtime_ns: int, size: int) -> tuple[tuple[str, str | None], ...]:
+    return tuple(read_part_map(path).items())
+
+
+def _part_map(path: str) -> tuple[tuple[str, str | None], ...]:
+    """A part map's entries, read again only when the file changes (a build asks for its stage
+    keys once per task, thousands of times at ShapeNet scale)."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise ValueError(f"cannot read the part map {path}: {exc.strerror or exc}") from None
+    return _read_map(os.path.abspath(path), st.st_mtime_ns, st.st_size)
 
 
 def _overrides(cls_name: str, flag: str) -> dataclasses.Field:
@@ -45,6 +65,11 @@ class BuildSettings:
     render_overrides: str = _overrides("RenderSettings", "render_settings")
     augment_overrides: str = _overrides("AugmentSettings", "augment_settings")
     shard_overrides: str = _overrides("ShardSettings", "shard_settings")
+    # A file source's part labels (procedural parts come from the generator): read as
+    # `python -m train.templates build --source` reads them, so shards match that template.
+    part_labels: str = "segmentation"  # file source: 'segmentation' (OBJ groups, glTF nodes, PLY labels, .pts/.seg) or 'none'
+    part_map: str = ""  # file source: YAML/JSON {part name or glob: common name or null}, as templates build --part-map
+    labels_dir: str = ""  # file source: folder of points/<id>.pts + points_label/<id>.seg (ShapeNet-part)
     work_dir: Path = DEFAULT_WORK_DIR  # stage outputs, keyed by settings (never part of a hash)
     dataset_dir: Path = DEFAULT_DATASET_DIR  # shards and manifest.json
     batch_size: int = dataclasses.field(default=16, metadata={
@@ -69,6 +94,19 @@ class BuildSettings:
     def shard_settings(self) -> ShardSettings:
         return from_dict(ShardSettings, parse_json_object(self.shard_overrides))
 
+    def part_label_settings(self) -> PartLabelSettings | None:
+        """How prepare names a file source's parts; None for the procedural source (its parts
+        come from the generator's sidecar). Raises PartMapError (a ValueError) for a bad map
+        and ValueError for an unknown ``part_labels``."""
+        if self.is_procedural:
+            return None
+        if self.part_labels not in PART_LABEL_CHOICES:
+            raise ValueError(f"must be one of {', '.join(PART_LABEL_CHOICES)}, got {self.part_labels!r}")
+        labels_dir = str(Path(self.labels_dir).resolve()) if self.labels_dir else ""
+        part_map = _part_map(self.part_map) if self.part_map else ()
+        return PartLabelSettings(segmentation=self.part_labels == "segmentation", part_map=part_map,
+                                 labels_dir=labels_dir)
+
     # ---- source
     @property
     def is_procedural(self) -> bool:
@@ -91,7 +129,14 @@ class BuildSettings:
         return stage_key("source", {"source": self.source_id(), "seed": self.seed})
 
     def prepare_key(self) -> str:
-        return stage_key("prepare", self.prepare_settings(), self.source_key())
+        parts = self.part_label_settings()
+        if parts is None:  # the procedural key as it always was: its outputs are unchanged
+            return stage_key("prepare", self.prepare_settings(), self.source_key())
+        # a file source's prepare writes part labels: the map's content and the choice key it
+        # (a changed map rebuilds); the "parts" entry also retires folders of older code,
+        # which wrote no labels, without touching the procedural key
+        return stage_key("prepare", {**settings_dict(self.prepare_settings()), "parts": parts.key()},
+                         self.source_key())
 
     def render_key(self) -> str:
         return stage_key("render", {"render": settings_dict(self.render_settings()), "seed": self.seed},
@@ -121,8 +166,14 @@ class BuildSettings:
             "render": settings_dict(self.render_settings()),
             "augment": settings_dict(self.augment_settings()),
             "shards": settings_dict(self.shard_settings()),
+            **({} if self.is_procedural else {"parts": self._parts_manifest()}),
             "stage_keys": {s: self.stage_dir(s).name for s in ("source", "prepare", "render", "augment", "shards")},
         }
+
+    def _parts_manifest(self) -> dict:
+        """The part label settings without this machine's paths (the labels folder by name)."""
+        key = self.part_label_settings().key()
+        return {**key, "labels_dir": Path(key["labels_dir"]).name if key["labels_dir"] else None}
 
     def category_settings_hash(self) -> str:
         return settings_hash(self.manifest_settings())

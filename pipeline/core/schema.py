@@ -10,7 +10,9 @@ Per-model stage folders, ``<stage-dir>/<category>/<model_id>/``:
 
 - every stage: ``RECORD`` (written last; see :mod:`pipeline.core.records`);
 - prepare: ``MESH_FILE`` (watertight, normalized), ``LINE_MESH_FILE`` (the source surface the
-  render stage draws), ``SAMPLES_FILE`` (float32 ``(N, 6)`` surface points + normals);
+  render stage draws), ``SAMPLES_FILE`` (float32 ``(N, 6)`` surface points + normals) and, for
+  a file source with a segmentation, ``SAMPLE_PARTS_FILE`` (uint8 ``(N,)`` per sample, an index
+  into the record's ``part_labels["names"]``);
 - render: ``view_name(i)`` drawings, ``CAMERAS_FILE``, ``STROKES_FILE`` (captured strokes);
 - augment: ``sketch_name(view, variant)`` sketches, ``STROKES_FILE`` (the variants' strokes).
 
@@ -21,8 +23,12 @@ its members are ``REQUIRED_MEMBERS``, one ``sketch_name(view, variant)`` per vie
 :class:`SampleMeta`.
 
 Part fields. A model's parts come from the procedural generator's sidecar (labels such as
-``wing_l``, ``engine0_r``). Both the shard writer and the trainer speak of part *families*: the
-label without its side and instance suffixes, which is also what template patches are labelled with.
+``wing_l``, ``engine0_r``) or, for a file source, from the mesh's segmentation (OBJ groups, glTF
+nodes, PLY labels, ShapeNet-part points; :mod:`pipeline.sources.segmentation`). Both the shard
+writer and the trainer speak of part *families*: the label without its side and instance
+suffixes, which is also what template patches are labelled with. A file source's family is its
+part's name normalized and mapped as ``train.templates`` names the parts it builds a template
+from (the prepare record's ``parts[i]["family"]``), so shard labels match that template.
 
 - ``meta.json[PRESENT_PARTS]``: sorted families the model has, or None when the source has no
   part labels (then every template part counts as present).
@@ -51,6 +57,7 @@ RECORD = "record.json"
 MESH_FILE = "mesh.ply"
 LINE_MESH_FILE = "lines.ply"
 SAMPLES_FILE = "samples.npy"
+SAMPLE_PARTS_FILE = "sample_parts.npy"
 CAMERAS_FILE = "cameras.json"
 STROKES_FILE = "strokes.json"
 VIEW_GLOB = "view_*.png"

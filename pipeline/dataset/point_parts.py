@@ -1,8 +1,9 @@
-"""Part family of every surface sample, from the procedural source's per-part OBJ groups.
+"""Part family of every shard point.
 
-The prepared mesh is a repaired union, so it has lost which face came from which part; the source
-OBJ still has one ``o <label>`` group per part. Each part is sampled densely in the normalized
-frame and a surface point takes the family of the nearest part sample.
+Procedural source: from its per-part OBJ groups (one ``o <label>`` group per part), labelled here
+(``procedural_point_parts``). File source: the prepare stage labelled its samples from the
+segmentation (``pipeline.prepare.part_labels``); here they are only subsampled with the points
+(``prepared_point_parts``). Either way: uint8 ids into sorted family names.
 """
 
 from __future__ import annotations
@@ -10,15 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from scipy.spatial import cKDTree
 
 from pipeline.core.errors import ModelError
-from pipeline.core.normalize import apply_transform
 from pipeline.core.schema import part_family
-from pipeline.prepare.sampling import sample_surface
+from pipeline.prepare.part_labels import SAMPLES_PER_PART, label_points
 
-SAMPLES_PER_PART = 4096
+__all__ = ["SAMPLES_PER_PART", "label_points", "prepared_point_parts", "procedural_point_parts", "read_obj_parts",
+           "source_obj"]
 
 
 def read_obj_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -49,26 +48,6 @@ def read_obj_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
     return out
 
 
-def label_points(
-    points: np.ndarray, parts: list[tuple[str, np.ndarray, np.ndarray]], center, scale: float, rng: np.random.Generator
-) -> tuple[np.ndarray, list[str]]:
-    """uint8 ``(N,)`` family index per point (xyz in the normalized frame) and the sorted family names."""
-    names = sorted({part_family(label) for label, _, _ in parts})
-    if len(names) > 255:
-        raise ValueError(f"{len(names)} part families do not fit uint8 labels")
-    samples, ids = [], []
-    for label, v, f in parts:
-        mesh = trimesh.Trimesh(apply_transform(v, np.asarray(center, float), float(scale)), f, process=False)
-        if mesh.area <= 0:
-            continue
-        samples.append(sample_surface(mesh, SAMPLES_PER_PART, rng)[:, :3])
-        ids.append(np.full(SAMPLES_PER_PART, names.index(part_family(label)), np.uint8))
-    if not samples:
-        raise ValueError("no part has a surface")
-    _, nearest = cKDTree(np.concatenate(samples)).query(np.asarray(points)[:, :3], k=1)
-    return np.concatenate(ids)[nearest], names
-
-
 def source_obj(prepare_dir: Path, rec: dict) -> Path | None:
     """The procedural source OBJ of a prepared model, found under the same work folder (the path in
     the record is relative to wherever the build ran); None when the source has no part groups."""
@@ -81,3 +60,30 @@ def source_obj(prepare_dir: Path, rec: dict) -> Path | None:
         if cand.is_file():
             return cand
     raise ModelError(prepare_dir, f"procedural source {rel} not found (needed for per-point part labels)")
+
+
+def procedural_point_parts(obj: Path, points: np.ndarray, center, scale: float,
+                           rng: np.random.Generator) -> tuple[np.ndarray, list[str]]:
+    """Family ids of ``points`` (normalized frame) from a procedural OBJ's part groups."""
+    parts = [(part_family(label), v, f) for label, v, f in read_obj_parts(obj)]
+    return label_points(points, parts, center, scale, rng)
+
+
+def prepared_point_parts(prepare_dir: Path, rec: dict, idx: np.ndarray | None) -> tuple[np.ndarray, list[str]] | None:
+    """The prepare stage's sample labels of a file source model, at the shard's subset ``idx``
+    of the samples (None: all), and their names; None when prepare labelled none."""
+    info = rec.get("part_labels")
+    name = (rec.get("files") or {}).get("sample_parts")
+    if not isinstance(info, dict) or not name:
+        return None
+    path = Path(prepare_dir) / name
+    try:
+        ids = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ModelError(path, f"cannot load sample part labels: {e}") from e
+    names = list(info.get("names") or [])
+    if ids.ndim != 1 or ids.dtype != np.uint8 or (len(ids) and int(ids.max()) >= len(names)):
+        raise ModelError(path, f"sample part labels must be uint8 (N,) ids into {len(names)} names")
+    if idx is not None:
+        ids = ids[idx]
+    return np.ascontiguousarray(ids), names

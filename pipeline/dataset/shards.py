@@ -41,7 +41,7 @@ from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, FRAGMENT, MANIFE
                                   STROKES_MEMBER, SampleMeta, present_parts, sample_key, shard_name)
 from pipeline.core.seeding import rng_for
 from pipeline.core.splits import DEFAULT_FRACTIONS, split_of
-from pipeline.dataset.point_parts import label_points, read_obj_parts, source_obj
+from pipeline.dataset.point_parts import prepared_point_parts, procedural_point_parts, source_obj
 
 TAR_FORMAT = tarfile.GNU_FORMAT
 MIN_POINTS = 7000
@@ -111,20 +111,22 @@ def _read_bytes(path: Path) -> bytes:
         raise ModelError(path, f"cannot read: {e.strerror or e}") from e
 
 
-def _load_points(path: Path, n: int, key: tuple) -> np.ndarray:
+def _load_points(path: Path, n: int, key: tuple) -> tuple[np.ndarray, np.ndarray | None]:
+    """The sample's points and which prepared samples they are (None: all of them)."""
     try:
         pts = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as e:
         raise ModelError(path, f"cannot load surface samples: {e}") from e
     if pts.ndim != 2 or pts.shape[1] != 6 or not np.isfinite(pts).all():
         raise ModelError(path, f"surface samples must be finite (N, 6), got shape {pts.shape}")
+    idx = None
     if len(pts) > n:
         # a seeded subset, sorted so the member keeps the prepared order
         idx = np.sort(rng_for(*key).choice(len(pts), size=n, replace=False))
         pts = pts[idx]
     if len(pts) < MIN_POINTS:
         raise ModelError(path, f"only {len(pts)} surface samples, need at least {MIN_POINTS}")
-    return np.ascontiguousarray(pts, dtype=np.float32)
+    return np.ascontiguousarray(pts, dtype=np.float32), idx
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
@@ -145,9 +147,18 @@ def _record(folder: Path) -> dict:
     return rec
 
 
-def _part_labels(rec: dict) -> list[str] | None:
-    """The generator's part labels from a prepare record (None when the source had no sidecar)."""
-    return [p["label"] for p in rec["parts"]] if rec.get("parts") else None
+def _part_labels(rec: dict) -> tuple[list[str] | None, list[str] | None]:
+    """(part labels, present families) of a prepare record, (None, None) without parts.
+
+    A file source's parts carry their family, named at prepare as the template builder names
+    them (``seg3`` stays ``seg3``; a part the map drops has none); the generator's labels are
+    reduced to families here (``part_family``)."""
+    parts = rec.get("parts") or []
+    if any("family" in p for p in parts):
+        kept = [p for p in parts if p.get("family")]
+        return [p["label"] for p in kept] or None, sorted({p["family"] for p in kept}) or None
+    labels = [p["label"] for p in parts] or None
+    return labels, present_parts(labels)
 
 
 def assemble_sample(
@@ -167,8 +178,8 @@ def assemble_sample(
     _record(dirs.render_dir)
     _record(dirs.augment_dir)
     key = sample_key(category, dirs.model_id)
-    points = _load_points(dirs.prepare_dir / SAMPLES_FILE, settings.points,
-                          (seed, "shards", category, dirs.model_id))
+    points, idx = _load_points(dirs.prepare_dir / SAMPLES_FILE, settings.points,
+                               (seed, "shards", category, dirs.model_id))
     members: dict[str, bytes] = {POINTS_MEMBER: _npy_bytes(points)}
     sketches = sorted(p for p in Path(dirs.augment_dir).glob(SKETCH_GLOB))
     if not sketches:
@@ -177,14 +188,18 @@ def assemble_sample(
         members[p.name] = _read_bytes(p)
     members[STROKES_MEMBER] = _read_bytes(dirs.augment_dir / STROKES_FILE)
     members[CAMERAS_MEMBER] = _read_bytes(dirs.render_dir / CAMERAS_FILE)
-    labels = _part_labels(prep)
+    labels, present = _part_labels(prep)
     point_names = None
-    obj = source_obj(dirs.prepare_dir, prep) if labels else None
-    if obj is not None:
+    prepared = prepared_point_parts(dirs.prepare_dir, prep, idx) if labels else None
+    obj = source_obj(dirs.prepare_dir, prep) if labels and prepared is None else None
+    if prepared is not None:
+        ids, point_names = prepared
+        members[POINT_PARTS_MEMBER] = _npy_bytes(ids)
+    elif obj is not None:
         norm = prep.get("normalization") or {}
         try:
-            ids, point_names = label_points(points, read_obj_parts(obj), norm["center"], norm["scale"],
-                                            rng_for(seed, "point-parts", category, dirs.model_id))
+            ids, point_names = procedural_point_parts(obj, points, norm["center"], norm["scale"],
+                                                      rng_for(seed, "point-parts", category, dirs.model_id))
         except (KeyError, ValueError) as e:
             raise ModelError(obj, f"cannot label surface points by part: {e}") from e
         members[POINT_PARTS_MEMBER] = _npy_bytes(ids)
@@ -197,7 +212,7 @@ def assemble_sample(
         source_sha256=src.get("sha256"),
         normalization=prep.get("normalization"),
         part_labels=labels,
-        present_parts=present_parts(labels),
+        present_parts=present,
         point_part_names=point_names,
         bodies=prep.get("bodies"),
         seed=seed,

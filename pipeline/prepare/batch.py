@@ -4,6 +4,8 @@ Per model it writes ``<stage_dir>/<category>/<model_id>/{mesh.ply, lines.ply, sa
 record.json}``, record last, so a killed batch resumes where it stopped. ``mesh.ply`` is the
 watertight solid the samples lie on; ``lines.ply`` is the cleaned source surface in the same
 frame, which the renderer draws (pipeline.prepare.line_mesh: it keeps the source's sharp edges).
+A file source whose mesh carries a segmentation also gets ``sample_parts.npy``, the part of each
+sample (pipeline.prepare.part_labels), and its parts in the record.
 ``prepare_batch`` is what the Luigi task calls; ``prepare_model`` does one model and raises
 ModelError for bad input.
 """
@@ -22,9 +24,11 @@ from pipeline.core.atomic import write_npy
 from pipeline.core.errors import ModelError
 from pipeline.core.model_loop import ModelJob, run_models
 from pipeline.core.records import ModelRef, Progress, write_ok
-from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLES_FILE, sidecar_path
+from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLE_PARTS_FILE, SAMPLES_FILE, sidecar_path
 from pipeline.prepare.line_mesh import line_mesh
 from pipeline.prepare.mesh_checks import check_input
+from pipeline.prepare.part_labels import segmentation_labels
+from pipeline.sources.segmentation import PartLabelSettings
 from pipeline.sources.mesh_io import load_mesh, sha256_file, write_ply
 from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
 from pipeline.prepare.settings import PrepareSettings
@@ -134,17 +138,22 @@ def _sidecar_fields(side: dict, center: np.ndarray, scale: float) -> dict:
     }
 
 
-def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> dict:
+def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
+                  parts: PartLabelSettings | None = None) -> dict:
     """Prepare one model into ``out_dir`` (its files and record.json); returns the record.
 
     Raises ModelError for bad input or a repair that fails verification (no record written).
     """
-    return write_ok(out_dir, **prepare_files(ref, out_dir, settings))
+    return write_ok(out_dir, **prepare_files(ref, out_dir, settings, parts))
 
 
-def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> dict:
+def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
+                  parts: PartLabelSettings | None = None) -> dict:
     """Write one model's mesh.ply, lines.ply and samples.npy into ``out_dir``; returns its record
-    fields (the caller writes record.json). Raises ModelError for bad input."""
+    fields (the caller writes record.json). Raises ModelError for bad input.
+
+    ``parts``: how a file source's segmentation names its parts (None: no segmentation read,
+    what a procedural build passes; its parts come from the generator's sidecar)."""
     out_dir = Path(out_dir)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
@@ -181,10 +190,20 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
     samples = sample_surface(final, settings.n_samples, rng_for(settings.seed, "prepare", ref.category, ref.model_id))
     timings["sample"] = time.perf_counter() - t
 
+    side = _read_sidecar(path)
+    labelled = None
+    if side is None and parts is not None:
+        t = time.perf_counter()
+        labelled = segmentation_labels(path, vertices, faces, ref.model_id, parts, samples, center, scale,
+                                       rng_for(settings.seed, "prepare-parts", ref.category, ref.model_id))
+        timings["part_labels"] = time.perf_counter() - t
+
     t = time.perf_counter()
     write_ply(out_dir / MESH_FILE, final.vertices, final.faces)
     write_ply(out_dir / LINE_MESH_FILE, lines.vertices, lines.faces)
     write_npy(out_dir / SAMPLES_FILE, samples)
+    if labelled is not None:
+        write_npy(out_dir / SAMPLE_PARTS_FILE, labelled[1])
     timings["write"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
 
@@ -205,18 +224,21 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings) -> di
         "settings": dataclasses.asdict(settings),
         "timings": {k: round(v, 4) for k, v in timings.items()},
     }
-    side = _read_sidecar(path)
     if side is not None:
         fields.update(_sidecar_fields(side, center, scale))
+    elif labelled is not None:
+        fields.update(labelled[0])
+        fields["files"]["sample_parts"] = SAMPLE_PARTS_FILE
     return fields
 
 
 def prepare_batch(
-    refs: list[ModelRef], stage_dir: Path, settings: PrepareSettings, progress: Progress = None
+    refs: list[ModelRef], stage_dir: Path, settings: PrepareSettings, progress: Progress = None,
+    parts: PartLabelSettings | None = None,
 ) -> list[dict]:
     """Prepare every model not yet done (pipeline.core.model_loop: a bad model is recorded as
-    failed, a storage or environment error fails the batch)."""
+    failed, a storage or environment error fails the batch); ``parts`` as in ``prepare_files``."""
     jobs = [ModelJob(r.category, r.model_id, r.path, r,
                      failed_fields={"source": {"kind": r.source, "path": str(r.path)}}) for r in refs]
-    return run_models("prepare", stage_dir, jobs, lambda job, folder: prepare_files(job.item, folder, settings),
+    return run_models("prepare", stage_dir, jobs, lambda job, folder: prepare_files(job.item, folder, settings, parts),
                       progress)

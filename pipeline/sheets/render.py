@@ -87,7 +87,8 @@ def render_procedural(build: BuildSettings, categories: list[str]) -> Path:
     prep = build.stage_dir("prepare")
     for cat in categories:
         refs = listed_models(build, cat)
-        records = prepare_batch(refs, prep, build.prepare_settings(), progress=_print_progress)
+        records = prepare_batch(refs, prep, build.prepare_settings(), progress=_print_progress,
+                                parts=build.part_label_settings())
         items = [(r.model_id, model_dir(prep, cat, r.model_id) / LINE_MESH_FILE)
                  for r, rec in zip(refs, records) if rec.get("status") == "ok"]
         render_batch(cat, items, build.stage_dir("render"), build.render_settings(), build.seed,

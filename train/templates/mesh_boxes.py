@@ -25,10 +25,10 @@ from pipeline.core.errors import ModelError
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
 from pipeline.sources.mesh_io import load_mesh
+from pipeline.sources.part_names import map_name
+from pipeline.sources.segmentation import RawPart, read_segmentation
 from train.templates.lattice import Box
 from train.templates.median import sample_surface
-from train.templates.mesh_parts import RawPart, read_segmentation
-from train.templates.part_names import map_name
 from train.templates.user import ModelBoxes, TemplateInputError
 
 COMPONENT_LABEL = "part"

@@ -59,7 +59,7 @@ def run_user_build(args: argparse.Namespace, out: Path, error: Callable[[str], N
     from train.templates.build import write_template_png
     from train.templates.cuboid_file import CuboidFileError, file_models, read_cuboid_file
     from train.templates.mesh_boxes import PartSettings, source_models
-    from train.templates.part_names import PartMapError, read_part_map
+    from pipeline.sources.part_names import PartMapError, read_part_map
     from train.templates.template import save_template
     from train.templates.user import TemplateInputError, UserSettings, build_user_template
 

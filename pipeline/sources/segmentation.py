@@ -4,7 +4,8 @@ In order of preference:
 
 1. what the file carries: OBJ ``g`` groups (else ``o`` objects), glTF/GLB nodes (their transforms
    applied; node name, else mesh name), PLY per-face labels (a face property ``label``, ``part``,
-   ``segment`` or ``class``; or such a vertex property, a face taking its first vertex's);
+   ``segment`` or ``class``; or such a vertex property, a face taking its first vertex's); not
+   for ShapeNetCore's ``models/model_normalized.obj``, whose groups are per material;
 2. a per-point label file beside the mesh, the ShapeNet-part convention: ``<stem>.pts`` (one
    ``x y z`` per line) + ``<stem>.seg`` (one integer per line), also looked up as
    ``points/<id>.pts`` + ``points_label/<id>.seg`` under the mesh's folder or a ``labels_dir``
@@ -12,13 +13,17 @@ In order of preference:
    centre, both sets normalized to the unit sphere first (ShapeNet-part points are not in
    ShapeNetCore's scale; the axes must agree). Labels are named ``seg<N>``; a part map renames them.
 
-``None`` means no segmentation (one part or none): the caller falls back to connected components.
-The mesh itself is loaded by ``pipeline.sources.mesh_io.load_mesh`` (validation, error messages);
-this module only reads the part structure.
+``None`` means no segmentation (one part or none). The mesh itself is loaded by
+``pipeline.sources.mesh_io.load_mesh`` (validation, error messages); this module only reads the
+part structure. Two readers share it, so a template's part names and a shard's part labels are
+the same names: ``train.templates`` (part boxes of a user's category) and the prepare stage
+(``named_parts``: the part labels of a file source's models).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +32,8 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.errors import ModelError
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
+from pipeline.sources.layouts import SHAPENET_MODEL_FILE
+from pipeline.sources.part_names import map_name
 
 PLY_LABEL_NAMES = ("label", "part", "segment", "class", "part_id", "segment_id")
 
@@ -52,7 +59,9 @@ def read_segmentation(path: Path, vertices: np.ndarray, faces: np.ndarray, model
     ``vertices``/``faces``: the mesh as ``load_mesh`` read it (used for label-file transfer)."""
     ext = path.suffix.lower()
     seg = None
-    if ext == ".obj":
+    if _is_shapenet_core(path):
+        pass  # ShapeNetCore's groups are material groups ("mesh12-geometry"), not parts: only its points files
+    elif ext == ".obj":
         seg = _obj_groups(path)
     elif ext in (".glb", ".gltf"):
         seg = _gltf_nodes(path)
@@ -64,6 +73,10 @@ def read_segmentation(path: Path, vertices: np.ndarray, faces: np.ndarray, model
     if points is not None:
         return points_segmentation(vertices, faces, *points)
     return None
+
+
+def _is_shapenet_core(path: Path) -> bool:
+    return Path(path).parts[-len(SHAPENET_MODEL_FILE.parts):] == SHAPENET_MODEL_FILE.parts
 
 
 def _obj_groups(path: Path) -> Segmentation | None:
@@ -139,7 +152,9 @@ def _ply_labels(path: Path) -> Segmentation | None:
 
 def find_points_file(path: Path, model_id: str, labels_dir: Path | None) -> tuple[Path, Path] | None:
     """(points, labels) files of a model, if any (see module docstring)."""
-    names = [n for n in dict.fromkeys((path.stem, model_id)) if n]
+    # ShapeNetCore v2 keeps every mesh as <id>/models/model_normalized.obj: the id is the folder's
+    shapenet_id = path.parent.parent.name if path.parent.name == "models" else ""
+    names = [n for n in dict.fromkeys((path.stem, model_id, shapenet_id)) if n]
     folders = [path.parent, path.parent.parent] + ([Path(labels_dir)] if labels_dir else [])
     for name in names:
         cands = [(path.parent / f"{name}.pts", path.parent / f"{name}.seg")]
@@ -187,3 +202,48 @@ def points_segmentation(vertices: np.ndarray, faces: np.ndarray, pts_file: Path,
         face_ids[voted] = tally[voted].argmax(axis=1)
     parts = [RawPart(f"seg{int(values[k])}", v, faces[face_ids == k], is_id=True) for k in np.unique(face_ids)]
     return Segmentation(parts, "points file")
+
+
+# ---------------------------------------------------------------- part labels of a file source
+
+@dataclass(frozen=True)
+class PartLabelSettings:
+    """How the prepare stage names a file source's parts: the same reader and map as
+    ``python -m train.templates build --source`` (its ``--components``, ``--part-map``,
+    ``--labels-dir``), so shard labels and template part names agree."""
+
+    segmentation: bool = True  # False: no part labels (every template part counts as present)
+    part_map: tuple[tuple[str, str | None], ...] = ()  # read_part_map's entries, in file order
+    labels_dir: str = ""  # folder with points/<id>.pts + points_label/<id>.seg
+
+    def key(self) -> dict:
+        """What enters the prepare key of a file source: the map by content (a comment or a
+        reformatting of the file rebuilds nothing), order kept (the first matching glob wins)."""
+        mapping = json.dumps([list(kv) for kv in self.part_map]).encode()
+        return {"segmentation": self.segmentation, "labels_dir": self.labels_dir or None,
+                "part_map_sha256": hashlib.sha256(mapping).hexdigest() if self.part_map else None}
+
+
+@dataclass(frozen=True)
+class NamedPart:
+    raw: str  # the name in the file (group, node, seg<N>)
+    name: str | None  # the common name (normalized, mapped), None: dropped by the map
+    vertices: np.ndarray  # source frame
+    faces: np.ndarray
+
+
+def named_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str,
+                settings: PartLabelSettings) -> tuple[list[NamedPart], str] | None:
+    """A model's parts under their common names, and the segmentation's origin; None when the
+    file has no segmentation or the settings turn it off. Names as ``train.templates`` gives
+    them (``map_name``; ids such as ``seg3`` keep their digits)."""
+    if not settings.segmentation:
+        return None
+    seg = read_segmentation(Path(path), vertices, faces, model_id,
+                            Path(settings.labels_dir) if settings.labels_dir else None)
+    if seg is None:
+        return None
+    part_map = dict(settings.part_map) or None
+    parts = [NamedPart(p.name, map_name(p.name, part_map, normalize=not p.is_id), p.vertices, p.faces)
+             for p in seg.parts if len(p.faces)]
+    return parts, seg.origin
