@@ -25,8 +25,11 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow $(PYTEST_ARGS)
 
-bench: $(STAMP)
-	for f in bench/bench_*.py; do $(PY) $$f || exit 1; done
+# Every bench/bench_*.py with its defaults (those reading a dataset read the one `make dataset`
+# builds). bench/probe_*.py analyse a trained run and bench/compare_stage.py two checkouts: they
+# take arguments (BENCHMARKS.md gives the commands).
+bench: dataset
+	for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 clean-venv:
 	rm -rf $(VENV)

@@ -74,8 +74,8 @@ def fit_ceiling(dataset: str, category: str, template_name: str, split: str = "t
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", required=True)
-    p.add_argument("--category", required=True)
+    p.add_argument("--dataset", default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
+    p.add_argument("--category", default="knife")
     p.add_argument("--template", default=None, help="default: the category's template")
     p.add_argument("--split", default="test")
     p.add_argument("--shapes", type=int, default=16)

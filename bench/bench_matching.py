@@ -52,7 +52,7 @@ def matching_inputs(dataset: str, category: str, template: str, batch: int, nois
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--dataset", required=True)
+    ap.add_argument("--dataset", default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
     ap.add_argument("--category", default="airplane")
     ap.add_argument("--template", default="airplane")
     ap.add_argument("--batch-size", type=int, default=8)

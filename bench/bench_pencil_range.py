@@ -42,7 +42,7 @@ def collect(dataset: Path) -> dict[tuple[str, int], np.ndarray]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", type=Path, required=True)
+    p.add_argument("--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
     p.add_argument("--json", type=Path, default=None)
     a = p.parse_args()
     rows = {}

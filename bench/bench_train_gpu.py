@@ -71,7 +71,7 @@ def step_times(a, data: DataSettings, batch: int, dev: torch.device) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--dataset", required=True)
+    ap.add_argument("--dataset", default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
     ap.add_argument("--category", default="airplane")
     ap.add_argument("--template", default="airplane")
     ap.add_argument("--batch-sizes", type=int, nargs="+", default=[8, 32])
@@ -80,7 +80,11 @@ def main() -> None:
     ap.add_argument("--loader-batches", type=int, default=30)
     ap.add_argument("--max-views", type=int, default=4)
     ap.add_argument("--points", type=int, default=7000)
+    ap.add_argument("--cpu", action="store_true", help="run on the CPU when there is no GPU (default: skip)")
     a = ap.parse_args()
+    if not torch.cuda.is_available() and not a.cpu:
+        print("bench_train_gpu: no CUDA device, skipped (--cpu runs it on the CPU)")
+        return
     dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     data = DataSettings(max_views=a.max_views, n_points=a.points, image_size=128)
     res = {"device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu", "torch": torch.__version__,

@@ -63,7 +63,7 @@ def candidate_pass_share(work: Path) -> dict[str, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", type=Path, required=True)
+    p.add_argument("--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
     p.add_argument("--work-dir", type=Path, default=None)
     p.add_argument("--floor", type=float, default=0.35)
     p.add_argument("--json", type=Path, default=None)

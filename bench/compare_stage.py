@@ -1,6 +1,6 @@
 """CPU seconds per model of one stage, for two checkouts of the code, alternated in one run.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_stage_ab.py --work /tmp/bench_pipeline/work \\
+    OMP_NUM_THREADS=1 .venv/bin/python bench/compare_stage.py --work /tmp/bench_pipeline/work \\
         --stage augment --roots /path/to/main /path/to/branch [--every 3] [--rounds 2]
 
 On a shared machine absolute CPU times drift with the load; the ratio of two code versions

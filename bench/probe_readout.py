@@ -1,6 +1,6 @@
 """Is it the encoder or the head? Re-fit only the output layer of a trained run, two ways.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_readout.py --checkpoint RUN/best.pt --dataset DS \
+    OMP_NUM_THREADS=1 .venv/bin/python bench/probe_readout.py --checkpoint RUN/best.pt --dataset DS \
         --category CAT [--ridge] [--sgd-steps 600 --lr 1e-4] [--fits fits.pt] [--out readout.pt]
 
 The encoder and hidden layers stay frozen (evaluation mode); only ``out`` (the linear map from the

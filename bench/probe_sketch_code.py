@@ -2,11 +2,11 @@
 one sketch view to simple shape descriptors of the target (extent along x, y, z of its surface points,
 and whether each optional part is present), fitted on the train split, scored (R²) on another.
 
-High R² with a network whose outputs barely move (bench_sketch_response.py) means the information
+High R² with a network whose outputs barely move (probe_sketch_response.py) means the information
 reaches the encoder and the head does not use it yet (optimisation); low R² means the drawings
 or the encoder lose it.
 
-Usage: .venv/bin/python bench/bench_sketch_probe.py --checkpoint RUN/best.pt --dataset DS [--eval-split val]
+Usage: .venv/bin/python bench/probe_sketch_code.py --checkpoint RUN/best.pt --dataset DS [--eval-split val]
        (--init: the same architecture at its seeded initialisation instead of the checkpoint's weights;
         --pixels: the 16×16-pooled drawing itself, a reference for what a linear probe can get)
 """

@@ -6,7 +6,7 @@ frame). A network that reads the sketch gives different-model distances well abo
 variant distances (ratio >> 1); a network that outputs its mean shape gives ratio ~1 and tiny
 distances.
 
-Usage: .venv/bin/python bench/bench_sketch_response.py --checkpoint RUN/best.pt --dataset DS [--split test]
+Usage: .venv/bin/python bench/probe_sketch_response.py --checkpoint RUN/best.pt --dataset DS [--split test]
 """
 
 from __future__ import annotations
