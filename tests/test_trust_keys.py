@@ -150,14 +150,14 @@ def test_mode_is_part_of_the_cache_signature(tmp_path: Path, monkeypatch) -> Non
 
     path = tmp_path / "a.obj"
     box(path)
-    real = listing.sha256_file
+    real = listing.file_sha256
 
     def as_if_not_root(p):  # root reads mode-000 files; the listing must see what a user sees
         if not os.stat(p).st_mode & 0o444:
             raise PermissionError(13, "Permission denied", str(p))
         return real(p)
 
-    monkeypatch.setattr(listing, "sha256_file", as_if_not_root)
+    monkeypatch.setattr(listing, "file_sha256", as_if_not_root)
     cache: dict = {}
     good = file_key(path, cache, "a.obj")
     path.chmod(0)

@@ -20,7 +20,8 @@ import webdataset as wds
 from pipeline.build.settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from pipeline.core.schema import REQUIRED_MEMBERS
-from pipeline.dataset.shards import file_sha256, list_shards
+from pipeline.core.hashing import file_sha256
+from pipeline.dataset.shards import list_shards
 from pipeline.dataset.verify import verify_dataset
 from workflows import BuildCategory, BuildDataset
 

@@ -26,7 +26,8 @@ from pipeline.core.records import Progress, model_dir
 from pipeline.core.schema import FRAGMENT
 from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
                                read_manifest, write_fragment, write_manifest)
-from pipeline.dataset.shards import ModelDirs, file_sha256, list_shards, retire_category, write_category_shards
+from pipeline.core.hashing import file_sha256
+from pipeline.dataset.shards import ModelDirs, list_shards, retire_category, write_category_shards
 
 BATCHES = "_batches"
 RUNS = "_runs"

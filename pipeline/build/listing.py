@@ -28,7 +28,8 @@ from pipeline.build.settings import BuildSettings
 from pipeline.core.atomic import read_json, write_json
 from pipeline.core.records import ModelRef
 from pipeline.core.stage_keys import settings_hash
-from pipeline.sources.mesh_io import gltf_external_files, sha256_file
+from pipeline.core.hashing import file_sha256
+from pipeline.sources.mesh_io import gltf_external_files
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +83,7 @@ def file_key(path: Path, cache: dict, cache_name: str) -> FileKey:
     if hit is not None and hit[:-1] == sig:
         return FileKey(hit[-1], True)
     try:
-        sha = sha256_file(path)
+        sha = file_sha256(path)
     except OSError:
         return _stat_key(f"unreadable:{st.st_mode}:{st.st_uid}:{st.st_gid}:{st.st_ctime_ns}")
     cache[cache_name] = sig + [sha]

@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import fcntl
-import hashlib
 import io
 import os
 import re
@@ -36,6 +35,7 @@ import numpy as np
 
 from pipeline.core.atomic import dumps_json, read_json, write_json
 from pipeline.core.errors import ModelError
+from pipeline.core.hashing import file_sha256
 from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, FRAGMENT, MANIFEST, META_MEMBER, POINT_PARTS_MEMBER,
                                   POINTS_MEMBER, RECORD, SAMPLES_FILE, SHARD_RE, SKETCH_GLOB, SPLITS, STROKES_FILE,
                                   STROKES_MEMBER, SampleMeta, present_parts, sample_key, shard_name)
@@ -94,12 +94,6 @@ class ShardInfo:
                 "sha256": self.sha256, "keys": list(self.keys)}
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # ---------------------------------------------------------------- sample assembly
@@ -238,7 +232,7 @@ def _tarinfo(name: str, size: int) -> tarfile.TarInfo:
     return info
 
 
-class ShardWriter:
+class TarShard:
     """Append samples to one tar with fixed headers; the file is complete only after close()."""
 
     def __init__(self, path: Path):
@@ -271,7 +265,7 @@ def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
     past max_bytes_per_shard (a single oversized sample still gets a shard of its own).
     """
     infos: list[ShardInfo] = []
-    writer: ShardWriter | None = None
+    writer: TarShard | None = None
 
     def close() -> None:
         assert writer is not None
@@ -287,7 +281,7 @@ def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
             close()
             writer = None
         if writer is None:
-            writer = ShardWriter(Path(out_dir) / shard_name(split, len(infos)))
+            writer = TarShard(Path(out_dir) / shard_name(split, len(infos)))
         writer.add(sample)
     if writer is not None:
         close()

@@ -15,7 +15,8 @@ from pathlib import Path
 from pipeline.core.names import UnsafePath, inside, is_safe_component
 from pipeline.core.schema import FRAGMENT, MANIFEST, META_MEMBER, REQUIRED_MEMBERS, SHARD_RE, SPLITS, sketch_view_variant
 from pipeline.dataset.manifest import content_checksum, read_fragment
-from pipeline.dataset.shards import file_sha256, iter_shard, list_shards
+from pipeline.core.hashing import file_sha256
+from pipeline.dataset.shards import iter_shard, list_shards
 
 
 def _check_sample(shard: str, key: str, members: dict[str, bytes], split: str) -> list[str]:

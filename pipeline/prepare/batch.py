@@ -29,7 +29,8 @@ from pipeline.prepare.line_mesh import line_mesh
 from pipeline.prepare.mesh_checks import check_input
 from pipeline.prepare.part_labels import segmentation_labels
 from pipeline.sources.segmentation import PartLabelSettings
-from pipeline.sources.mesh_io import load_mesh, sha256_file, write_ply
+from pipeline.core.hashing import file_sha256
+from pipeline.sources.mesh_io import load_mesh, write_ply
 from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
 from pipeline.prepare.settings import PrepareSettings
 from pipeline.prepare.sampling import sample_surface
@@ -161,7 +162,7 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
 
     t = time.perf_counter()
     vertices, faces = load_mesh(path, settings.max_input_bytes)
-    sha = sha256_file(path)
+    sha = file_sha256(path)
     check_input(path, vertices, faces, settings.max_input_faces, settings.max_abs_coordinate)
     timings["load"] = time.perf_counter() - t
 

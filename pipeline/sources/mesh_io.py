@@ -11,7 +11,6 @@ entry up. A new format is one ``register_format(MeshFormat(...))`` call at the e
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -44,13 +43,6 @@ _OBJ_ZERO = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)", re.M
 _BOM = b"\xef\xbb\xbf"
 
 
-def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
-    """Hex sha256 of a file, read in chunks so huge meshes don't sit in memory twice."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _file_kind(mode: int) -> str:
