@@ -135,7 +135,7 @@ def tick(args) -> None:
 
 def _no_op_steps() -> None:
     """Replace the stages' work in this process (only here: the benchmark measures the rest)."""
-    from pipeline.build.listing import list_path, procedural_tag
+    from workflows.listing import list_path, procedural_tag
     from pipeline.core.atomic import write_json
     from workflows import steps, tasks
 

@@ -38,7 +38,7 @@ from pipeline.sources.layouts import list_categories, list_models  # noqa: E402
 from render.batch import render_batch  # noqa: E402
 from render.line_fidelity import ViewScore, score_view  # noqa: E402
 from render.settings import RenderSettings  # noqa: E402
-from pipeline.sheets.render import sheet_of_rows  # noqa: E402
+from workflows.sheets.render import sheet_of_rows  # noqa: E402
 
 DRAWN = {"before": MESH_FILE, "after": LINE_MESH_FILE}
 

@@ -33,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
 from pipeline.core.atomic import read_json, write_json  # noqa: E402
-from pipeline.build.listing import current_listing  # noqa: E402
-from pipeline.build.settings import BuildSettings  # noqa: E402
+from workflows.listing import current_listing  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.core.records import model_dir  # noqa: E402
 from pipeline.shapes import CATEGORIES  # noqa: E402
 from workflows import steps  # noqa: E402

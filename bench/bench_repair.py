@@ -1,7 +1,7 @@
 """What a re-run costs before any work: the completeness check of a built category
 (workflows.steps.category_problems) with sizes only (the default), every shard's sha256
 (``--verify``), and, for scale, a full ``pipeline verify`` (reads every tar); and re-reading a
-folder source's model list (pipeline.build.listing): first time (every file hashed) vs cached.
+folder source's model list (workflows.listing): first time (every file hashed) vs cached.
 Synthetic samples as in bench_shards.py; medians over repeats.
 Run: OMP_NUM_THREADS=1 .venv/bin/python bench/bench_repair.py [--models 256] [--repeats 5]
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_shards import fake_model  # noqa: E402
 
-from pipeline.build.settings import BuildSettings  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.dataset.manifest import category_fragment, write_fragment, write_manifest  # noqa: E402
 from pipeline.dataset.shards import list_shards, write_category_shards  # noqa: E402
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
@@ -61,7 +61,7 @@ def main() -> None:
 
 def listing(root: Path, n: int, repeats: int) -> None:
     """Model list of a folder of ``n`` 1 MiB files: hashed once, then found in the cache."""
-    from pipeline.build.listing import current_listing
+    from workflows.listing import current_listing
 
     src = root / "src" / "mug"
     src.mkdir(parents=True)

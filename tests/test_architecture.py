@@ -1,7 +1,9 @@
 """The package layout is the data flow: every import points down the stage order.
 
 base (pipeline.core, pipeline.shapes) <- sources <- prepare <- render <- augment
-<- dataset writing, the build's settings and listing, and sheets <- workflows; ``train`` sees only the base layer.
+<- dataset writing and the shards' preview <- workflows (the build's settings and listing, the
+stages' sheets, the Luigi tasks); ``train`` sees only the base layer. Between top-level
+packages every arrow points one way (no package imports one that imports it).
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ LEVELS = {
     "render": 3,
     "augment": 4,
     "pipeline.dataset": 5,
-    "pipeline.build": 5,
     "pipeline.sheets": 5,
     "pipeline.__main__": 6,
     "workflows": 6,
@@ -127,3 +128,21 @@ def test_the_check_sees_upward_imports(tmp_path):
     assert bad == ["probe.py:3 imports render.settings (level 0 importing level 3)",
                    "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)",
                    "geometry_probe.py:1 imports train.losses.collision (train level 1 importing train level 4)"]
+
+
+def package_graph() -> dict[str, set[str]]:
+    """Top-level package -> the top-level packages its modules import."""
+    graph: dict[str, set[str]] = {p: set() for p in PACKAGES}
+    for path in project_files():
+        me = module_name(path).split(".")[0]
+        for _, target in imported_modules(path):
+            if target.split(".")[0] != me:
+                graph[me].add(target.split(".")[0])
+    return graph
+
+
+def test_package_arrows_point_one_way():
+    graph = package_graph()
+    both = sorted((a, b) for a in graph for b in graph[a] if a < b and a in graph.get(b, set()))
+    assert both == [], f"packages importing each other: {both}"
+    assert graph["pipeline"] == set()  # the stages before and after drawing need no drawing code

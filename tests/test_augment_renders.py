@@ -74,7 +74,7 @@ def test_vectorization_f1_on_procedural_categories(tmp_path):
 def test_contact_sheet(sample_renders, tmp_path):
     from PIL import Image
 
-    from pipeline.sheets.augment import main
+    from workflows.sheets.augment import main
 
     root, _ = sample_renders
     out = tmp_path / "sheet.png"

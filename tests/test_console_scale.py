@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import write_json
 from pipeline.core.records import model_dir, write_ok
 from workflows import console, steps

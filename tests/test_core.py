@@ -29,7 +29,7 @@ def test_settings_hash_changes_with_settings_and_upstream():
 
 def test_code_version_bump_rekeys_the_stage_and_downstream(monkeypatch):
     from pipeline.core import stage_keys as config
-    from pipeline.build.settings import BuildSettings
+    from workflows.build_settings import BuildSettings
 
     s = BuildSettings()
     before = {st: s.stage_dir(st).name for st in ("prepare", "render", "augment", "shards")}

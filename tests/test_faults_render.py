@@ -9,10 +9,10 @@ from pathlib import Path
 
 import luigi
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from workflows import BuildCategory
-from pipeline.build.listing import current_listing
+from workflows.listing import current_listing
 from workflows.steps import batch_path
 
 # a timeout no Blender start can meet: the worker "hangs" from the supervisor's point of view

@@ -19,7 +19,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from bad_inputs import BAD_PARAMETERS, CLASHES  # noqa: E402
 
-from pipeline.build.settings import BuildSettings  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
 from workflows.console import Progress  # noqa: E402

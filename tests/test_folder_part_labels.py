@@ -14,7 +14,7 @@ import torch
 import trimesh
 import webdataset as wds
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.records import ModelRef
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS, SAMPLE_PARTS_FILE
 from pipeline.dataset.shards import list_shards

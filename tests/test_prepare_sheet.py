@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
-from pipeline.build.settings import BuildSettings
-from pipeline.sheets.prepare import main
+from workflows.build_settings import BuildSettings
+from workflows.sheets.prepare import main
 
 
 def test_prepare_sheet_command(tmp_path):

@@ -12,11 +12,11 @@ import pytest
 
 from pipeline.core.errors import ModelError
 from pipeline.core.records import ModelRef
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.prepare.batch import prepare_model
 from pipeline.prepare.settings import PrepareSettings
 from pipeline.sources import layouts, mesh_io
-from pipeline.build.listing import current_listing
+from workflows.listing import current_listing
 from render import rigs
 from render.cameras import rig
 from render.settings import RenderSettings

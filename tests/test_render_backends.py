@@ -16,7 +16,7 @@ from PIL import Image
 
 from augment.metrics import stroke_scores
 from pipeline.core.atomic import read_json
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from render.batch import render_batch
 from render.edge_lines import draw_strokes
 from render.settings import RenderSettings

@@ -203,7 +203,7 @@ def test_relative_paths_resolved(rendered, tmp_path, monkeypatch):
 
 
 def test_contact_sheet_from_stage(rendered, tmp_path):
-    from pipeline.sheets.render import main, sheet_from_stage
+    from workflows.sheets.render import main, sheet_from_stage
 
     plain = sheet_from_stage(rendered["stage"], per_category=3)
     over = sheet_from_stage(rendered["stage"], per_category=3, strokes=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from augment.settings import AugmentSettings, VectorizeSettings
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.settings_io import SettingError, add_arguments, flag_name, from_args, from_dict
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
@@ -140,7 +140,7 @@ def test_stage_defaults_are_the_build_defaults() -> None:
 
 
 def test_render_sheet_uses_the_build_stage_folders(tmp_path: Path) -> None:
-    from pipeline.sheets.render import render_procedural
+    from workflows.sheets.render import render_procedural
 
     b = BuildSettings(work_dir=tmp_path, models_per_category=1, views=2)
     assert render_procedural(b, []) == b.stage_dir("render")

@@ -29,7 +29,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from test_shards import make_model_dirs  # noqa: E402
 
-from pipeline.build.settings import BuildSettings  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.core.atomic import write_json  # noqa: E402
 from pipeline.dataset.manifest import read_manifest  # noqa: E402
 from pipeline.dataset.shards import (LOCK_FILE, OWNED_FILE, CategoryBusy, NotOurFiles, ShardSettings,  # noqa: E402

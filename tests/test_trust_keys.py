@@ -19,8 +19,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from as_user import call_as  # noqa: E402
 
-from pipeline.build.listing import current_listing, file_key, model_key  # noqa: E402
-from pipeline.build.settings import BuildSettings  # noqa: E402
+from workflows.listing import current_listing, file_key, model_key  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from pipeline.sources.mesh_io import gltf_external_files, load_mesh  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
@@ -146,7 +146,7 @@ def test_obj_material_files_do_not_change_the_geometry(tmp_path: Path) -> None:
 
 def test_mode_is_part_of_the_cache_signature(tmp_path: Path, monkeypatch) -> None:
     """A failed read is never cached, and chmod alone (no new mtime) misses the cache."""
-    import pipeline.build.listing as listing
+    import workflows.listing as listing
 
     path = tmp_path / "a.obj"
     box(path)
@@ -181,7 +181,7 @@ def _nobody() -> tuple[int, int] | None:
 def test_fixed_permission_rebuilds_the_model(tmp_path: Path) -> None:
     """A user lists and prepares a folder with a mode-000 file (it fails, permission denied),
     fixes the mode, and the next build builds it instead of reusing the failure."""
-    from pipeline.build.listing import listed_models
+    from workflows.listing import listed_models
     from pipeline.prepare.batch import prepare_batch
 
     who = _nobody()

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import webdataset as wds
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.dataset.manifest import read_manifest
 from pipeline.core.schema import REQUIRED_MEMBERS
 from pipeline.core.hashing import file_sha256

@@ -26,7 +26,7 @@ from typing import Callable, TextIO
 
 import luigi
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.records import model_dir
 from pipeline.core.schema import FRAGMENT, MANIFEST, RECORD, SPLITS
 from pipeline.dataset.manifest import read_manifest

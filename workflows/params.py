@@ -1,5 +1,5 @@
 """Luigi parameters made from a settings dataclass, and command-line flags made from a task's
-parameters: a build setting is typed once, in ``pipeline.build.settings.BuildSettings``, and is
+parameters: a build setting is typed once, in ``workflows.build_settings.BuildSettings``, and is
 then the same parameter for the `luigi` command, `make dataset` and Python callers."""
 
 from __future__ import annotations

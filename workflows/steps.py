@@ -3,7 +3,7 @@ tested directly. Each batch step writes a small JSON listing its models' outcome
 
 ``{"stage", "category", "batch", "models": [{"model_id", "work_id", "status", "stage", "error"?}]}``
 
-Steps take the category's model list (pipeline.build.listing): a batch is a slice of it, and models are
+Steps take the category's model list (workflows.listing): a batch is a slice of it, and models are
 handed to the stages under their work ids, which name their output folders.
 
 A model that failed upstream is carried forward with the stage where it failed, so the shard
@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 from pipeline.core.atomic import read_json, storage_error, write_json
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.stage_keys import settings_hash
-from pipeline.build.listing import duplicate_outcome, model_ref
+from workflows.listing import duplicate_outcome, model_ref
 from pipeline.core.records import Progress, model_dir
 from pipeline.core.schema import FRAGMENT
 from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
@@ -61,7 +61,7 @@ def n_batches(n_models: int, batch_size: int) -> int:
 def write_source_list(s: BuildSettings, category: str) -> int:
     """Generate the procedural source's models and store their list (file sources store theirs
     while listing); returns the count."""
-    from pipeline.build.listing import current_listing, list_path, procedural_tag
+    from workflows.listing import current_listing, list_path, procedural_tag
     from pipeline.sources.layouts import list_models
 
     if not s.is_procedural:

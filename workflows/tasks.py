@@ -11,8 +11,8 @@ from typing import Iterator
 
 import luigi
 
-from pipeline.build.settings import BuildSettings
-from pipeline.build.listing import current_listing, list_path, read_listing
+from workflows.build_settings import BuildSettings
+from workflows.listing import current_listing, list_path, read_listing
 from workflows import lifetime, steps, validate
 from workflows.params import settings_values, with_parameters
 
@@ -46,7 +46,7 @@ class _BuildTask(luigi.Task):
 
 
 class _ListedTask(_BuildTask):
-    """A task of one category's model list, named by the list's key (see pipeline.build.listing)."""
+    """A task of one category's model list, named by the list's key (see workflows.listing)."""
 
     category = luigi.Parameter()
     listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")

@@ -11,7 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from pipeline.build.settings import PART_LABEL_CHOICES, BuildSettings
+from workflows.build_settings import PART_LABEL_CHOICES, BuildSettings
 from pipeline.core.settings_io import SettingError, flag_name, from_dict
 
 

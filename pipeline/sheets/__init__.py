@@ -1,1 +1,2 @@
-"""Contact sheets and previews of every stage, in one place (reads every stage's outputs)."""
+"""Contact sheets that only read files: the dataset's shards (``python -m pipeline preview``) and
+the procedural shapes. The stage sheets, which run stages, are in workflows/sheets."""

@@ -1,6 +1,6 @@
 """Contact sheet of the augment stage: per model a row render → vector strokes → variants.
 
-    python -m pipeline.sheets.augment --render-dir WORK/render-<key> --out sheets/augment.png
+    python -m workflows.sheets.augment --render-dir WORK/render-<key> --out sheets/augment.png
 
 Vector strokes are drawn one colour per stroke, so joins and splits are visible.
 """

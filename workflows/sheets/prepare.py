@@ -1,6 +1,6 @@
 """Contact sheet of raw vs prepared shapes: per category a row of (raw, prepared) pairs.
 
-    .venv/bin/python -m pipeline.sheets.prepare --out sheets/prepared.png --per-category 3
+    .venv/bin/python -m workflows.sheets.prepare --out sheets/prepared.png --per-category 3
 
 Models are prepared (or reused, if already prepared) under ``--work``, in the prepare stage folder
 a build with the same settings uses (``BuildSettings.stage_dir``); raw thumbnails are drawn from
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.build.listing import listed_models
-from pipeline.build.settings import BuildSettings
+from workflows.listing import listed_models
+from workflows.build_settings import BuildSettings
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import MESH_FILE
 from pipeline.core.images import contact_sheet, save_png

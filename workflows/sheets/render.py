@@ -1,8 +1,8 @@
 """Contact sheet of rendered views: one row per model, its views side by side.
 
-    python -m pipeline.sheets.render --stage-dir WORK/render-<key> --out sheets/renders.png
-    python -m pipeline.sheets.render --work-dir WORK --out sheets/renders.png      # newest render-* folder
-    python -m pipeline.sheets.render --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
+    python -m workflows.sheets.render --stage-dir WORK/render-<key> --out sheets/renders.png
+    python -m workflows.sheets.render --work-dir WORK --out sheets/renders.png      # newest render-* folder
+    python -m workflows.sheets.render --procedural --work-dir WORK --per-category 2 --out sheets/renders.png
 
 ``--procedural`` first makes the inputs itself: procedural models → prepare stage → render stage
 (all under WORK, in the stage folders a build with the same settings uses), then draws the sheet.
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import read_json
 from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
 from pipeline.core.images import contact_sheet, save_png
@@ -80,7 +80,7 @@ def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
 
 def render_procedural(build: BuildSettings, categories: list[str]) -> Path:
     """The build's models → prepare → render, into the build's stage folders; returns the render one."""
-    from pipeline.build.listing import listed_models
+    from workflows.listing import listed_models
     from pipeline.prepare.batch import prepare_batch
     from render.batch import render_batch
 

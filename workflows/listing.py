@@ -24,7 +24,7 @@ import os
 import stat
 from pathlib import Path
 
-from pipeline.build.settings import BuildSettings
+from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import read_json, write_json
 from pipeline.core.records import ModelRef
 from pipeline.core.stage_keys import settings_hash
