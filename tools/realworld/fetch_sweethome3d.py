@@ -2,7 +2,7 @@
 furniture libraries and write them as a folder source: ``<out>/<category>/<model>.obj``.
 
     python tools/realworld/fetch_sweethome3d.py --category chair --out sources/furniture
-    python -m pipeline build --source sources/furniture --categories chair ...
+    .venv/bin/luigi --module workflows BuildDataset --local-scheduler --source sources/furniture --categories chair ...
 
 The Debian package ``sweethome3d-furniture`` (CC0 / CC-BY 3.0 model libraries: Scopia, Kator
 Legaz, BlendSwap, Reallusion) is downloaded with ``apt-get download`` (nothing installed) and
