@@ -144,3 +144,15 @@ def test_render_sheet_uses_the_build_stage_folders(tmp_path: Path) -> None:
 
     b = BuildSettings(work_dir=tmp_path, models_per_category=1, views=2)
     assert render_procedural(b, []) == b.stage_dir("render")
+
+
+def test_a_setting_given_twice_is_an_error_naming_both(tmp_path):
+    from workflows.build_settings import BuildSettings
+    from workflows.validate import BuildParameterError, check_settings
+
+    s = BuildSettings(views=8, render_overrides='{"views": 4}', work_dir=tmp_path)
+    with pytest.raises(BuildParameterError, match=r"--render-settings: 'views' has its own flag \(--views\)"):
+        check_settings(s)
+    with pytest.raises(BuildParameterError, match=r"'out_size' has its own flag \(--out-size\)"):
+        check_settings(BuildSettings(augment_overrides='{"out_size": 64}', work_dir=tmp_path))
+    check_settings(BuildSettings(views=8, render_overrides='{"backend": "embree"}', work_dir=tmp_path))

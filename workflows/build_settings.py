@@ -47,6 +47,18 @@ def _overrides(cls_name: str, flag: str) -> dataclasses.Field:
     return dataclasses.field(default="", metadata={"flag": flag, "help": f"JSON object of {cls_name} overrides"})
 
 
+def _one_spelling(direct: dict, overrides: str) -> dict:
+    """A stage's settings from the build's own fields and its JSON overrides. A setting with its
+    own flag (``--views``) is given there only: in the JSON too it is an error naming both, where
+    one of the two used to win silently."""
+    extra = parse_json_object(overrides)
+    both = sorted(set(direct) & set(extra))
+    if both:
+        flags = ", ".join(f"--{k.replace('_', '-')}" for k in both)
+        raise ValueError(f"{', '.join(map(repr, both))} has its own flag ({flags}): give it there, not in the JSON")
+    return {**direct, **extra}
+
+
 @dataclasses.dataclass(frozen=True)
 class BuildSettings:
     """Everything a dataset build depends on. Paths are not part of any hash."""
@@ -81,15 +93,15 @@ class BuildSettings:
         return self.models_per_category if self.models_per_category > 0 else None
 
     def prepare_settings(self) -> PrepareSettings:
-        return from_dict(PrepareSettings, {"seed": self.seed, **parse_json_object(self.prepare_overrides)})
+        return from_dict(PrepareSettings, _one_spelling({"seed": self.seed}, self.prepare_overrides))
 
     def render_settings(self) -> RenderSettings:
-        return from_dict(RenderSettings, {"views": self.views, "image_size": self.image_size,
-                                          **parse_json_object(self.render_overrides)})
+        return from_dict(RenderSettings, _one_spelling({"views": self.views, "image_size": self.image_size},
+                                                       self.render_overrides))
 
     def augment_settings(self) -> AugmentSettings:
-        return from_dict(AugmentSettings, {"variants": self.variants, "out_size": self.out_size,
-                                           **parse_json_object(self.augment_overrides)})
+        return from_dict(AugmentSettings, _one_spelling({"variants": self.variants, "out_size": self.out_size},
+                                                        self.augment_overrides))
 
     def shard_settings(self) -> ShardSettings:
         return from_dict(ShardSettings, parse_json_object(self.shard_overrides))
