@@ -79,7 +79,7 @@ class BuildSettings:
     shard_overrides: str = _overrides("ShardSettings", "shard_settings")
     # A file source's part labels (procedural parts come from the generator): read as
     # `python -m train.templates build --source` reads them, so shards match that template.
-    part_labels: str = "segmentation"  # file source: 'segmentation' (OBJ groups, glTF nodes, PLY labels, .pts/.seg) or 'none'
+    part_labels: str = "segmentation"  # file source: 'segmentation' (OBJ/glTF/PLY groups, .pts/.seg) or 'none'
     part_map: str = ""  # file source: YAML/JSON {part name or glob: common name or null}, as templates build --part-map
     labels_dir: str = ""  # file source: folder of points/<id>.pts + points_label/<id>.seg (ShapeNet-part)
     work_dir: Path = DEFAULT_WORK_DIR  # stage outputs, keyed by settings (never part of a hash)
