@@ -1,6 +1,6 @@
-import dataclasses
 """Template format: sphere templates, junction curves, JSON round trip, symmetry, bad input."""
 
+import dataclasses
 import json
 
 import numpy as np
