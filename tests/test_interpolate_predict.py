@@ -87,3 +87,45 @@ def test_predict_with_a_part_switched_off_exports_a_closed_mesh(tmp_path, guard)
     assert res["mesh"]["boundary_edges"] == 0 and res["mesh"]["watertight"]
     assert res["patches"] == len(t.active_patches({"guard": guard}))
     assert (res["patches"] < t.num_patches - len(t.closing_patches["guard"]) - len(t.closing_patches["pommel"])) == (not guard)
+
+
+def test_interpolation_frames_share_one_mesh_and_strip_shows_verdicts(checkpoint, tmp_path):
+    """Every frame of a series has the same faces array (a morph, not a remesh: per-frame counts
+    gave 874 then 1098 vertices), and strip.png has one tile per frame, two rows (patch, latent)."""
+    from pipeline.core.images import contact_sheet
+    from train.interpolate import STRIP_TILE
+
+    ck, (a, b) = checkpoint
+    steps = 3
+    res = interpolate(ck, [a], [b], tmp_path, steps=steps, alpha=6.0)
+    for space in ("patch", "latent"):
+        meshes = [trimesh.load(tmp_path / f"{space}_{k:02d}.obj", process=False) for k in range(steps)]
+        for m in meshes[1:]:
+            assert np.array_equal(m.faces, meshes[0].faces)
+            assert len(m.vertices) == len(meshes[0].vertices) == res["mesh"][space]["vertices"]
+        assert not np.allclose(meshes[0].vertices, meshes[-1].vertices)  # the shape does move
+        assert meshes[0].is_watertight and meshes[-1].is_watertight
+        assert len(res["clean"][space]) == steps and all(isinstance(c, bool) for c in res["clean"][space])
+    strip = cv2.imread(str(tmp_path / "strip.png"))
+    want = contact_sheet([np.zeros((STRIP_TILE, STRIP_TILE, 3), np.uint8)] * 2 * steps, [""] * 2 * steps, cols=steps)
+    assert strip.shape[:2] == want.shape[:2]  # `steps` tiles wide, two rows with their labels
+    assert (strip < 200).any(axis=-1).mean() > 0.02  # shaded meshes drawn, not a blank sheet
+
+
+def test_sequence_meshing_keeps_counts_where_per_frame_meshing_changes_them():
+    """Frames whose arc lengths grow: per-frame integer programs choose different counts, the
+    sequence uses one set, at least each frame's own density (from the longest arc lengths)."""
+    from train.export.quadmesh import quad_mesh, quad_mesh_sequence
+
+    t = load_template("sphere24")
+    base = t.patches_from_params(t.initial_params(torch.float64)[None])[0].numpy()
+    frames = [base * s for s in (1.0, 1.3, 1.6)]
+    alone = [quad_mesh(f, alpha=6.0) for f in frames]
+    assert len({len(m.vertices) for m in alone}) > 1  # what interpolate did before
+    seq = quad_mesh_sequence(frames, alpha=6.0)
+    assert all(np.array_equal(m.faces, seq[0].faces) and len(m.vertices) == len(seq[0].vertices) for m in seq)
+    assert np.array_equal(seq[0].counts, alone[-1].counts)  # the longest frame's lengths decide
+    for m, f in zip(seq, frames):  # each frame's mesh is that frame's patches meshed at the shared counts
+        given = quad_mesh(f, counts=seq[0].counts)
+        assert np.allclose(m.vertices, given.vertices, atol=1e-12) and np.array_equal(m.faces, given.faces)
+        assert trimesh.Trimesh(m.vertices, m.triangles(), process=False).is_watertight

@@ -1,7 +1,14 @@
 """IGES 5.3 writer and reader for bicubic patches as Rational B-Spline Surfaces (entity 128).
 
-Each patch is written exactly: degree 3 x 3, 4 x 4 control points, all weights 1, knots
-0,0,0,0,1,1,1,1 in both directions (a Bézier patch is a single-span B-spline). The file has the
+Each patch is written exactly: degree 3 x 3, all weights 1, as a B-spline of ``SPANS`` (4)
+uniform spans in each direction (knots 0,0,0,0,¼,½,¾,1,1,1,1, 7 x 7 control points): the bicubic
+Bézier net with knots inserted, which is the same surface (each new control point is a blossom
+value of the Bézier net, de Casteljau with the knots as parameters). Why not the single-span
+form (4 x 4, knots 0,0,0,0,1,1,1,1): OpenCASCADE's sewing, which is what CAD programs built on it
+run on an IGES of loose faces, seeds its projection of one edge onto its neighbour from a few
+samples per span, and on a single-span edge that doubles back (a strongly bent prediction) it
+lands on the wrong branch and leaves two identical edges unsewn at any tolerance; 2 spans did
+not cure every measured case, 4 did (``tests/test_cad_tolerances.py``). The file has the
 fixed-format sections Start (S), Global (G), Directory Entry (D, two lines per entity),
 Parameter Data (P) and Terminate (T), each record 80 columns with the section letter in column 73
 and the sequence number in 74-80. Coordinates are model coordinates × ``CadUnits.factor``, and the
@@ -19,10 +26,10 @@ import numpy as np
 
 from pipeline.core.atomic import write_bytes
 from pipeline.core.errors import ModelError
-from train.export.bicubic import bernstein3
 from train.export.units import CadUnits
 
-_KNOTS = (0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)
+SPANS = 4  # uniform spans per direction: see the module docstring
+_KNOTS = (0.0,) * 4 + tuple(k / SPANS for k in range(1, SPANS)) + (1.0,) * 4
 # A fixed timestamp keeps the file byte-identical across runs (the standard requires one).
 _DATE = "20210101.000000"
 
@@ -52,14 +59,34 @@ def _delimited(values: list[str]) -> list[str]:
     return [v + "," for v in values[:-1]] + [values[-1] + ";"]
 
 
+def _blossom(ctrl: np.ndarray, us: tuple[float, float, float]) -> np.ndarray:
+    """Blossom of cubic Bézier control points ``(4, ...)`` at ``us``: de Casteljau with one
+    parameter per level (at equal parameters it is the curve point)."""
+    pts = np.asarray(ctrl, dtype=np.float64)
+    for u in us:
+        pts = (1.0 - u) * pts[:-1] + u * pts[1:]
+    return pts[0]
+
+
+def bspline_control(net: np.ndarray) -> np.ndarray:
+    """Control points ``(n, n, 3)`` over ``_KNOTS`` of the bicubic net ``(4, 4, 3)`` (i along s, j
+    along t): the same surface. Control point i of a cubic B-spline is the blossom at knots
+    i+1..i+3, so the ends stay the net's and no fitting is involved."""
+    triples = [tuple(_KNOTS[i + 1 : i + 4]) for i in range(len(_KNOTS) - 4)]
+    along_s = np.stack([_blossom(net, u) for u in triples])  # (n, 4, 3)
+    return np.stack([_blossom(along_s.transpose(1, 0, 2), u) for u in triples], axis=1)
+
+
 def entity128_params(net: np.ndarray) -> list[str]:
     """Parameter list of one bicubic net (4, 4, 3), ``net[i, j]`` with i along u (s), j along v (t)."""
-    params = ["128", "3", "3", "3", "3", "0", "0", "1", "0", "0"]
+    ctrl = bspline_control(net)
+    n = ctrl.shape[0] - 1  # upper index of the control points in each direction
+    params = ["128", str(n), str(n), "3", "3", "0", "0", "1", "0", "0"]
     params += [_real(k) for k in _KNOTS] * 2
-    params += [_real(1.0)] * 16
-    for j in range(4):  # the first index (u) varies fastest
-        for i in range(4):
-            params += [_real(c) for c in net[i, j]]
+    params += [_real(1.0)] * (n + 1) ** 2
+    for j in range(n + 1):  # the first index (u) varies fastest
+        for i in range(n + 1):
+            params += [_real(c) for c in ctrl[i, j]]
     params += [_real(0.0), _real(1.0), _real(0.0), _real(1.0)]
     return params
 
@@ -138,11 +165,26 @@ def read_iges(path: str | Path) -> list[dict]:
     return surfaces
 
 
+def bspline_basis(knots: np.ndarray, degree: int, x: np.ndarray) -> np.ndarray:
+    """(..., n) values of the n = len(knots) − degree − 1 B-spline basis functions at ``x``
+    (Cox–de Boor; the last span is closed so that x = knots[-1] is inside it)."""
+    knots = np.asarray(knots, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)[..., None]
+    lo, hi = knots[:-1], knots[1:]
+    last = np.arange(len(lo)) == np.nonzero(hi > lo)[0][-1]
+    basis = ((x >= lo) & ((x < hi) | (last & (x <= hi)))).astype(np.float64)
+    for d in range(1, degree + 1):
+        left_den, right_den = knots[d:-1] - knots[: -d - 1], knots[d + 1 :] - knots[1:-d]
+        left = np.divide(x - knots[: -d - 1], left_den, out=np.zeros(np.broadcast_shapes(x.shape, left_den.shape)), where=left_den > 0)
+        right = np.divide(knots[d + 1 :] - x, right_den, out=np.zeros(np.broadcast_shapes(x.shape, right_den.shape)), where=right_den > 0)
+        basis = left * basis[..., :-1] + right * basis[..., 1:]
+    return basis
+
+
 def eval_surface(surface: dict, s: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Evaluate a parsed single-span bicubic rational surface at parameters in [0, 1]."""
-    if surface["degree"] != (3, 3) or any(not np.allclose(k, _KNOTS) for k in surface["knots"]):
-        raise ValueError("only single-span bicubic surfaces (Bézier knots) are supported")
-    bu, bv = bernstein3(s), bernstein3(t)
+    """Evaluate a parsed rational B-spline surface at parameters inside its knot range."""
+    (du, dv), (ku, kv) = surface["degree"], surface["knots"]
+    bu, bv = bspline_basis(ku, du, s), bspline_basis(kv, dv, t)
     w = surface["weights"]
     num = np.einsum("...i,...j,ij,ijk->...k", bu, bv, w, surface["control"])
     den = np.einsum("...i,...j,ij->...", bu, bv, w)

@@ -96,14 +96,8 @@ def _side_params(graph: CurveGraph, params: list[np.ndarray], p: int, k: int) ->
     return np.sort(1.0 - q) if graph.flipped[p, k] else q
 
 
-def quad_mesh(patches: np.ndarray, alpha: float = 20.0, weld_tol: float = 1e-6) -> QuadMesh:
-    """Subdivide every patch into a grid whose boundary vertices coincide with its neighbours'.
-
-    ``alpha`` is segments per unit arc length (the paper's coarseness parameter).
-    """
-    patches = np.asarray(patches, dtype=np.float64)
-    graph = curve_graph(patches)
-    counts = subdivision_counts(graph, alpha)
+def _patch_grids(patches: np.ndarray, graph: CurveGraph, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unwelded grid points, quads and owning patch of every patch for the given curve counts."""
     params = curve_params(graph, counts)
     verts, faces, owner = [], [], []
     offset = 0
@@ -120,15 +114,73 @@ def quad_mesh(patches: np.ndarray, alpha: float = 20.0, weld_tol: float = 1e-6) 
         s = (1 - v) * s_bot[:, None] + v * s_top[:, None]
         t = (1 - u) * t_left[None, :] + u * t_right[None, :]
         st = torch.from_numpy(np.stack([s.ravel(), t.ravel()], -1))
-        pts = coons_points(torch.from_numpy(patches[p : p + 1]), st)[0].numpy()
-        verts.append(pts)
+        verts.append(coons_points(torch.from_numpy(patches[p : p + 1]), st)[0].numpy())
         idx = offset + np.arange((n + 1) * (m + 1)).reshape(n + 1, m + 1)
         quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
         faces.append(quads)
         owner.append(np.full(len(quads), p))
         offset += (n + 1) * (m + 1)
-    vertices, remap = weld(np.concatenate(verts), weld_tol * max(1.0, float(np.abs(patches).max())))
-    return QuadMesh(vertices, remap[np.concatenate(faces)], counts, graph, np.concatenate(owner))
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(owner)
+
+
+def _check_counts(graph: CurveGraph, counts: np.ndarray) -> np.ndarray:
+    counts = np.asarray(counts, dtype=int)
+    if counts.shape != (len(graph.curves),) or (counts < 1).any():
+        raise ValueError(f"counts must be {len(graph.curves)} integers >= 1 (one per curve), got shape {counts.shape}")
+    return counts
+
+
+def quad_mesh(
+    patches: np.ndarray, alpha: float = 20.0, weld_tol: float = 1e-6, counts: np.ndarray | None = None
+) -> QuadMesh:
+    """Subdivide every patch into a grid whose boundary vertices coincide with its neighbours'.
+
+    ``alpha`` is segments per unit arc length (the paper's coarseness parameter); ``counts``
+    (segments per curve of ``curve_graph(patches)``) skips the integer program and is used as
+    given, so shapes of one curve structure can share one mesh connectivity (``quad_mesh_sequence``).
+    """
+    patches = np.asarray(patches, dtype=np.float64)
+    graph = curve_graph(patches)
+    counts = subdivision_counts(graph, alpha) if counts is None else _check_counts(graph, counts)
+    points, faces, owner = _patch_grids(patches, graph, counts)
+    vertices, remap = weld(points, weld_tol * max(1.0, float(np.abs(patches).max())))
+    return QuadMesh(vertices, remap[faces], counts, graph, owner)
+
+
+def _same_structure(a: CurveGraph, b: CurveGraph) -> bool:
+    """Same curves on the same patch sides and the same junction parents and children (the
+    junction parameters may move: they are predicted)."""
+    if a.sides.shape != b.sides.shape or len(a.curves) != len(b.curves):
+        return False
+    def kids(g: CurveGraph) -> dict[int, list[int]]:
+        return {k: [c for c, _, _ in v] for k, v in g.children.items()}
+
+    return bool((a.sides == b.sides).all() and (a.flipped == b.flipped).all()) and kids(a) == kids(b)
+
+
+def quad_mesh_sequence(frames: list[np.ndarray], alpha: float = 20.0, weld_tol: float = 1e-6) -> list[QuadMesh]:
+    """Quad meshes of shapes with one curve structure (an interpolation's frames) that share one
+    connectivity: every mesh has the same vertex count and the same ``faces`` array.
+
+    Counts come from one integer program on each curve's longest arc length over the frames
+    (every frame gets at least its own density), and the first frame's weld (which grid points
+    are one vertex) is applied to all, so a vertex keeps its index from frame to frame.
+    """
+    frames = [np.asarray(f, dtype=np.float64) for f in frames]
+    graphs = [curve_graph(f) for f in frames]
+    for k, g in enumerate(graphs[1:], 1):
+        if not _same_structure(graphs[0], g):
+            raise ValueError(f"frame {k}: its curve structure differs from frame 0's; cannot share one mesh")
+    longest = dataclasses.replace(graphs[0], lengths=np.max([g.lengths for g in graphs], axis=0))
+    counts = subdivision_counts(longest, alpha)
+    meshes, remap, first = [], None, None
+    for f, g in zip(frames, graphs):
+        points, faces, owner = _patch_grids(f, g, counts)
+        if remap is None:
+            _, remap = weld(points, weld_tol * max(1.0, float(np.abs(f).max())))
+            _, first = np.unique(remap, return_index=True)  # one grid point stands for each vertex
+        meshes.append(QuadMesh(points[first], remap[faces], counts, g, owner))
+    return meshes
 
 
 def weld(points: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:

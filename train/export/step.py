@@ -80,10 +80,27 @@ def sew_patches(nets: np.ndarray) -> SewnPatches:
     if free == 0 and shape.ShapeType() == TopAbs_SHELL:
         made = BRepBuilderAPI_MakeSolid(TopoDS.Shell(shape))
         if made.IsDone():
-            shape = made.Solid()
-            BRepLib.OrientClosedSolid_s(shape)  # outward normals, positive volume
-            solid = True
+            oriented = made.Solid()
+            BRepLib.OrientClosedSolid_s(oriented)  # outward normals, positive volume
+            if signed_volume(oriented) < 0:
+                # its point classification is fooled by a shell that passes through itself (an
+                # unclean prediction) and can leave the solid inside out; the signed volume (the
+                # divergence theorem over the faces as oriented) is not: take the shell's
+                # orientation that encloses a positive volume
+                shells = (TopoDS.Shell(shape), TopoDS.Shell(shape.Reversed()))
+                oriented = max((BRepBuilderAPI_MakeSolid(sh).Solid() for sh in shells), key=signed_volume)
+            shape, solid = oriented, True
     return SewnPatches(shape, len(nets), int(free), solid)
+
+
+def signed_volume(shape) -> float:
+    """Volume enclosed by ``shape``'s faces as oriented (negative when they face inward)."""
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    props = GProp_GProps()
+    BRepGProp.VolumeProperties_s(shape, props)
+    return props.Mass()
 
 
 def write_step(path: str | Path, nets: np.ndarray, units: CadUnits = CadUnits()) -> SewnPatches:
