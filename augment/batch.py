@@ -22,9 +22,9 @@ from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
 from pipeline.core.atomic import read_json, write_json
 from pipeline.core.errors import ModelError
+from pipeline.core.images import save_png
 from pipeline.core.model_loop import ModelJob, run_models
 from pipeline.core.records import Progress, read_record
-from pipeline.core.images import save_png
 from pipeline.core.schema import STROKES_FILE, VIEW_GLOB, sketch_name, view_index
 
 
@@ -66,11 +66,12 @@ def _round(strokes: list[np.ndarray]) -> list:
         return [np.round(a, 2).tolist() for a in arrays]
     points = np.round(np.concatenate(arrays), 2).tolist()
     ends = np.cumsum([len(a) for a in arrays]).tolist()
-    return [points[e - len(a):e] for a, e in zip(arrays, ends)]
+    return [points[e - len(a) : e] for a, e in zip(arrays, ends)]
 
 
-def augment_model(category: str, model_id: str, render_dir: Path, out_dir: Path,
-                  settings: AugmentSettings, seed: int) -> dict:
+def augment_model(
+    category: str, model_id: str, render_dir: Path, out_dir: Path, settings: AugmentSettings, seed: int
+) -> dict:
     """Augment one model's views into ``out_dir``; returns the record fields. Raises ModelError."""
     render_dir = Path(render_dir)
     rec = read_record(render_dir)
@@ -100,21 +101,36 @@ def augment_model(category: str, model_id: str, render_dir: Path, out_dir: Path,
             ref = [np.asarray(s["points"], np.float64) for s in captured[view] if len(s["points"])]
             s2 = stroke_scores(strokes, ref, w, tol=2.0)
             s1 = stroke_scores(strokes, ref, w, tol=1.0)
-            q.update(precision=s2["precision"], recall=s2["recall"], f1=s2["f1"], f1_tol1=s1["f1"],
-                     n_captured=s2["n_ref"], count_ratio=s2["count_ratio"])
+            q.update(
+                precision=s2["precision"],
+                recall=s2["recall"],
+                f1=s2["f1"],
+                f1_tol1=s1["f1"],
+                n_captured=s2["n_ref"],
+                count_ratio=s2["count_ratio"],
+            )
         quality.append(q)
         variants = view_variants(strokes, w, settings, (seed, category, model_id, view))
         for k, var in enumerate(variants):
             save_png(Path(out_dir) / sketch_name(view, k), var.image)
-        doc_views.append({"view": view, "variants": [
-            {"variant": k, "width": round(var.width, 4), "strokes": _round(var.strokes)}
-            for k, var in enumerate(variants)]})
-    write_json(Path(out_dir) / STROKES_FILE, {
-        "out_size": settings.out_size, "source_size": w, "views": doc_views})
+        doc_views.append(
+            {
+                "view": view,
+                "variants": [
+                    {"variant": k, "width": round(var.width, 4), "strokes": _round(var.strokes)}
+                    for k, var in enumerate(variants)
+                ],
+            }
+        )
+    write_json(Path(out_dir) / STROKES_FILE, {"out_size": settings.out_size, "source_size": w, "views": doc_views})
     f1s = [q["f1"] for q in quality if "f1" in q]
     return {
-        "category": category, "model_id": model_id, "render_dir": str(render_dir),
-        "views": len(views), "variants": settings.variants, "out_size": settings.out_size,
+        "category": category,
+        "model_id": model_id,
+        "render_dir": str(render_dir),
+        "views": len(views),
+        "variants": settings.variants,
+        "out_size": settings.out_size,
         "sketches": [sketch_name(v, k) for v, _ in views for k in range(settings.variants)],
         "vectorization": quality,
         "mean_f1": float(np.mean(f1s)) if f1s else None,
@@ -122,11 +138,21 @@ def augment_model(category: str, model_id: str, render_dir: Path, out_dir: Path,
     }
 
 
-def augment_batch(category: str, items: list[tuple[str, Path]], stage_dir: Path,
-                  settings: AugmentSettings, seed: int, progress: Progress = None) -> list[dict]:
+def augment_batch(
+    category: str,
+    items: list[tuple[str, Path]],
+    stage_dir: Path,
+    settings: AugmentSettings,
+    seed: int,
+    progress: Progress = None,
+) -> list[dict]:
     """Augment every (model_id, render model folder); returns their records in order
     (pipeline.core.model_loop: a bad model is recorded, a storage error fails the batch)."""
     jobs = [ModelJob(category, model_id, Path(render_dir), Path(render_dir)) for model_id, render_dir in items]
-    return run_models("augment", stage_dir, jobs,
-                      lambda job, folder: augment_model(category, job.model_id, job.item, folder, settings, seed),
-                      progress)
+    return run_models(
+        "augment",
+        stage_dir,
+        jobs,
+        lambda job, folder: augment_model(category, job.model_id, job.item, folder, settings, seed),
+        progress,
+    )

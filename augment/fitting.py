@@ -74,7 +74,7 @@ def simplify(points: np.ndarray, epsilon: float, closed: bool = False) -> np.nda
         k = int(np.argmax(np.hypot(*(points - points[0]).T)))
         if k == 0:
             return points[:1].copy()
-        return np.concatenate([simplify(points[:k + 1], epsilon), simplify(points[k:], epsilon)[1:]])
+        return np.concatenate([simplify(points[: k + 1], epsilon), simplify(points[k:], epsilon)[1:]])
     approx = cv2.approxPolyDP(points.astype(np.float32).reshape(-1, 1, 2), float(epsilon), closed)
     out = approx.reshape(-1, 2).astype(np.float64)
     if not closed:

@@ -18,8 +18,9 @@ def rasterize_thin(strokes: list[np.ndarray], size: int | tuple[int, int]) -> np
     """Boolean (H, W) mask of the strokes drawn 1 px wide (pixel convention: centre at i + 0.5)."""
     h, w = (size, size) if isinstance(size, int) else size
     canvas = np.zeros((h, w), np.uint8)
-    polys = [np.round((np.asarray(s, np.float64) - 0.5) * (1 << _SHIFT)).astype(np.int32)
-             for s in strokes if len(s) >= 1]
+    polys = [
+        np.round((np.asarray(s, np.float64) - 0.5) * (1 << _SHIFT)).astype(np.int32) for s in strokes if len(s) >= 1
+    ]
     polys = [p if len(p) > 1 else np.concatenate([p, p]) for p in polys]
     if polys:
         cv2.polylines(canvas, polys, False, 255, 1, cv2.LINE_8, _SHIFT)
@@ -43,8 +44,7 @@ def ink_scores(pred: np.ndarray, ref: np.ndarray, tol: float = 2.0) -> dict:
     return {"precision": precision, "recall": recall, "f1": f1, "tol": tol}
 
 
-def stroke_scores(pred: list[np.ndarray], ref: list[np.ndarray], size: int | tuple[int, int],
-                  tol: float = 2.0) -> dict:
+def stroke_scores(pred: list[np.ndarray], ref: list[np.ndarray], size: int | tuple[int, int], tol: float = 2.0) -> dict:
     """Scores of vector strokes against reference vector strokes (e.g. Freestyle's), plus the
     stroke-count ratio pred / ref."""
     out = ink_scores(rasterize_thin(pred, size), rasterize_thin(ref, size), tol)

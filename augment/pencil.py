@@ -18,9 +18,9 @@ from scipy.ndimage import gaussian_filter
 from scipy.special import ndtr
 
 from augment.settings import REFERENCE_SIZE, AugmentSettings
-from augment.stroke_raster import deposit, densify, half_widths
+from augment.stroke_raster import densify, deposit, half_widths
 
-_GRAPHITE = 0.93    # darkest graphite tone (fraction of white removed)
+_GRAPHITE = 0.93  # darkest graphite tone (fraction of white removed)
 
 
 @functools.lru_cache(maxsize=4)
@@ -36,9 +36,15 @@ def _tooth_texture(n: int, grain_sigma: float) -> np.ndarray:
     return ndtr(t).astype(np.float32)
 
 
-def draw_pencil(strokes: list[np.ndarray], size: int, width: float, rng: np.random.Generator,
-                settings: AugmentSettings = AugmentSettings(), tones: tuple[float, float] | None = None,
-                tone: list[np.ndarray] = ()) -> np.ndarray:
+def draw_pencil(
+    strokes: list[np.ndarray],
+    size: int,
+    width: float,
+    rng: np.random.Generator,
+    settings: AugmentSettings = AugmentSettings(),
+    tones: tuple[float, float] | None = None,
+    tone: list[np.ndarray] = (),
+) -> np.ndarray:
     """Pencil sketch (size, size) uint8, black-ish graphite on white paper.
 
     ``strokes`` are (K, 2) (u, v) arrays in output pixels (contract convention) and ``width`` the
@@ -49,10 +55,10 @@ def draw_pencil(strokes: list[np.ndarray], size: int, width: float, rng: np.rand
     st = settings
     ss = st.supersample
     big = size * ss
-    scale = size / REFERENCE_SIZE          # reference px → output px
+    scale = size / REFERENCE_SIZE  # reference px → output px
     tooth_all = _tooth_texture(big, 0.45 * ss)
     oy, ox = rng.integers(0, big, 2)
-    tooth = tooth_all[oy:oy + big, ox:ox + big]
+    tooth = tooth_all[oy : oy + big, ox : ox + big]
     dark = np.zeros((big, big), np.float32)
     lo, hi = tones or st.tones_for(0)
     passes = [(strokes, 1.0, (lo, hi))]
@@ -60,8 +66,16 @@ def draw_pencil(strokes: list[np.ndarray], size: int, width: float, rng: np.rand
         passes.append((tone, st.shade_width, (lo * st.shade_tone, hi * st.shade_tone)))
     for lines, widen, opacity in passes:
         points, starts, arc = densify(lines, 1.0)  # one vertex per output px
-        half_width, darkness = half_widths(arc, starts, rng, 12.0 * scale, st.taper_length * scale,
-                                           st.pressure_noise, 0.5 * width * widen * ss, opacity)
+        half_width, darkness = half_widths(
+            arc,
+            starts,
+            rng,
+            12.0 * scale,
+            st.taper_length * scale,
+            st.pressure_noise,
+            0.5 * width * widen * ss,
+            opacity,
+        )
         # contract pixel (u, v) → pixel-centre coordinates of the supersampled canvas
         deposit(dark, tooth, points * ss - 0.5, starts, half_width, darkness, st.grain)
     small = cv2.resize(dark, (size, size), interpolation=cv2.INTER_AREA)

@@ -20,8 +20,9 @@ def _normals(points: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
 
 
-def tone_strokes(strokes: list[np.ndarray], rng: np.random.Generator, share: float,
-                 offset: tuple[float, float]) -> list[np.ndarray]:
+def tone_strokes(
+    strokes: list[np.ndarray], rng: np.random.Generator, share: float, offset: tuple[float, float]
+) -> list[np.ndarray]:
     """Tone strokes (output px) for a ``share`` of ``strokes``: 1–2 copies each, shifted by
     ``offset`` px (uniform range) to one side, over a random 40–90 % of the stroke's length.
     Draws from ``rng`` in stroke order, a fixed number of values per stroke."""
@@ -38,7 +39,7 @@ def tone_strokes(strokes: list[np.ndarray], rng: np.random.Generator, share: flo
         n = len(s)
         keep = max(3, int(round(n * (0.4 + 0.5 * span))))
         first = int(round(start * (n - keep)))
-        piece = s[first:first + keep]
+        piece = s[first : first + keep]
         normal = _normals(piece) * (1.0 if side < 0.5 else -1.0)
         for k in range(1 + int(copies < 0.5)):
             out.append(piece + normal * gaps[k] * (k + 1))

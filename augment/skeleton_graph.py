@@ -26,9 +26,9 @@ _SQRT2 = float(np.sqrt(2.0))
 
 @dataclasses.dataclass(frozen=True)
 class SkeletonPaths:
-    coordinates: np.ndarray   # (N, 2) int (row, col) of every skeleton pixel, raster order
-    degrees: np.ndarray       # (N,) neighbours kept per pixel
-    indptr: np.ndarray        # path i is indices[indptr[i]:indptr[i + 1]]
+    coordinates: np.ndarray  # (N, 2) int (row, col) of every skeleton pixel, raster order
+    degrees: np.ndarray  # (N,) neighbours kept per pixel
+    indptr: np.ndarray  # path i is indices[indptr[i]:indptr[i + 1]]
     indices: np.ndarray
 
     @property
@@ -36,7 +36,7 @@ class SkeletonPaths:
         return len(self.indptr) - 1
 
     def path(self, i: int) -> np.ndarray:
-        return self.indices[self.indptr[i]:self.indptr[i + 1]]
+        return self.indices[self.indptr[i] : self.indptr[i + 1]]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -115,11 +115,12 @@ def _walk_all(indptr: np.ndarray, indices: np.ndarray, degrees: np.ndarray, buf_
                 path_ptr[p + 1] = path_ptr[p] + steps
                 p += 1
                 j += steps
-    return path_ptr[:p + 1], buf[:j]
+    return path_ptr[: p + 1], buf[:j]
 
 
-def _drop_junction_cycles(n: int, indptr: np.ndarray, indices: np.ndarray, diagonal: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
+def _drop_junction_cycles(
+    n: int, indptr: np.ndarray, indices: np.ndarray, diagonal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Keep a minimum spanning tree of the links between junction pixels (skan's rule)."""
     degrees = np.diff(indptr)
     src = np.repeat(np.arange(n), degrees)

@@ -97,7 +97,11 @@ def densify(strokes: list[np.ndarray], spacing: float) -> tuple[np.ndarray, np.n
     stroke stays one point."""
     counts = np.array([len(s) for s in strokes], np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    flat = np.concatenate([np.asarray(s, np.float64).reshape(-1, 2) for s in strokes]) if len(strokes) else np.zeros((0, 2))
+    flat = (
+        np.concatenate([np.asarray(s, np.float64).reshape(-1, 2) for s in strokes])
+        if len(strokes)
+        else np.zeros((0, 2))
+    )
     points, out_starts, arc = _densify(np.ascontiguousarray(flat), starts, max(float(spacing), 1e-6))
     return points, out_starts, arc
 
@@ -124,9 +128,16 @@ def _half_widths(arc, starts, knots, knot_starts, phases, wavelength, taper_leng
     return out
 
 
-def half_widths(arc: np.ndarray, starts: np.ndarray, rng: np.random.Generator, wavelength: float,
-                taper_length: float, noise_amount: float, base: float, tones: tuple[float, float]
-                ) -> tuple[np.ndarray, np.ndarray]:
+def half_widths(
+    arc: np.ndarray,
+    starts: np.ndarray,
+    rng: np.random.Generator,
+    wavelength: float,
+    taper_length: float,
+    noise_amount: float,
+    base: float,
+    tones: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
     """Half-width at every point (``base`` × pressure) and one darkness per stroke.
 
     Per stroke, in stroke order, it draws from ``rng``: the darkness (uniform in ``tones``), the
@@ -144,8 +155,9 @@ def half_widths(arc: np.ndarray, starts: np.ndarray, rng: np.random.Generator, w
         knot_counts[k] = len(stroke_knots)
     knot_starts = np.concatenate([[0], np.cumsum(knot_counts)]).astype(np.int64)
     flat = np.concatenate(knots) if knots else np.zeros(0)
-    widths = _half_widths(arc, starts, flat, knot_starts, phases, float(wavelength), float(taper_length),
-                          float(noise_amount), float(base))
+    widths = _half_widths(
+        arc, starts, flat, knot_starts, phases, float(wavelength), float(taper_length), float(noise_amount), float(base)
+    )
     return widths, darkness
 
 
@@ -188,8 +200,15 @@ def _deposit(dark, tooth, stamp, points, starts, half_width, darkness, grain, ed
                     dark[y, x] = old + deposit * (1.0 - old)  # multiplicative layering
 
 
-def deposit(dark: np.ndarray, tooth: np.ndarray, points: np.ndarray, starts: np.ndarray,
-            half_width: np.ndarray, darkness: np.ndarray, grain: float) -> None:
+def deposit(
+    dark: np.ndarray,
+    tooth: np.ndarray,
+    points: np.ndarray,
+    starts: np.ndarray,
+    half_width: np.ndarray,
+    darkness: np.ndarray,
+    grain: float,
+) -> None:
     """Darken ``dark`` (H, W) float32 in place by each stroke in order.
 
     ``points`` (N, 2) are canvas pixel-centre coordinates (pixel (x, y) has its centre at (x, y)),
@@ -202,5 +221,14 @@ def deposit(dark: np.ndarray, tooth: np.ndarray, points: np.ndarray, starts: np.
     if len(points) != len(half_width) or len(darkness) != len(starts) - 1:
         raise ValueError("one half-width per point and one darkness per stroke")
     stamp = np.full(dark.shape, -1, np.int32)
-    _deposit(dark, tooth, stamp, np.ascontiguousarray(points, np.float64), np.asarray(starts, np.int64),
-             np.ascontiguousarray(half_width, np.float64), np.asarray(darkness, np.float64), float(grain), EDGE)
+    _deposit(
+        dark,
+        tooth,
+        stamp,
+        np.ascontiguousarray(points, np.float64),
+        np.asarray(starts, np.int64),
+        np.ascontiguousarray(half_width, np.float64),
+        np.asarray(darkness, np.float64),
+        float(grain),
+        EDGE,
+    )

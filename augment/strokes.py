@@ -33,8 +33,14 @@ def resample_strokes(strokes: Strokes, spacing: float) -> Strokes:
     return [catmull_rom(s, spacing) for s in strokes if len(s) >= 2]
 
 
-def drop(strokes: Strokes, rng: np.random.Generator, short_length: float, short_prob: float,
-         prob: float, keep_fraction: float = 0.5) -> Strokes:
+def drop(
+    strokes: Strokes,
+    rng: np.random.Generator,
+    short_length: float,
+    short_prob: float,
+    prob: float,
+    keep_fraction: float = 0.5,
+) -> Strokes:
     """Drop strokes shorter than ``short_length`` with ``short_prob``, any stroke with ``prob``.
 
     Dropped strokes come back, longest first, until at least ``keep_fraction`` of the drawing's
@@ -54,8 +60,9 @@ def drop(strokes: Strokes, rng: np.random.Generator, short_length: float, short_
     return [s for s, k in zip(strokes, keep) if k]
 
 
-def split(strokes: Strokes, rng: np.random.Generator, prob: float, max_points: int,
-          gap: tuple[float, float], min_piece: float) -> Strokes:
+def split(
+    strokes: Strokes, rng: np.random.Generator, prob: float, max_points: int, gap: tuple[float, float], min_piece: float
+) -> Strokes:
     """With ``prob`` per stroke, cut it at 1..max_points random places, leaving gaps in ``gap``.
 
     Pieces are never shorter than ``min_piece``: cut points that would make one are skipped.
@@ -81,8 +88,7 @@ def split(strokes: Strokes, rng: np.random.Generator, prob: float, max_points: i
     return out
 
 
-def truncate(strokes: Strokes, rng: np.random.Generator, prob: float, max_fraction: float,
-             max_px: float) -> Strokes:
+def truncate(strokes: Strokes, rng: np.random.Generator, prob: float, max_fraction: float, max_px: float) -> Strokes:
     """Shorten each end, with ``prob``, by up to min(max_fraction · length, max_px)."""
     out = []
     for s in strokes:
@@ -117,8 +123,7 @@ def extend(strokes: Strokes, rng: np.random.Generator, prob: float, max_px: floa
     return out
 
 
-def jitter(strokes: Strokes, rng: np.random.Generator, rotation_deg: float, scale: float
-           ) -> Strokes:
+def jitter(strokes: Strokes, rng: np.random.Generator, rotation_deg: float, scale: float) -> Strokes:
     """Per-stroke rotation (±rotation_deg) and scale (1 ± scale) about the stroke's centroid."""
     out = []
     for s in strokes:
@@ -148,8 +153,7 @@ def smooth_noise(rng: np.random.Generator, s: np.ndarray, wavelength: float) -> 
     return knots[np.minimum(i, n - 1)] * (1 - w) + knots[np.minimum(i + 1, n - 1)] * w
 
 
-def wobble(strokes: Strokes, rng: np.random.Generator, amplitude: float, wavelength: float
-           ) -> Strokes:
+def wobble(strokes: Strokes, rng: np.random.Generator, amplitude: float, wavelength: float) -> Strokes:
     """Smooth lateral offset along each stroke's normal, |offset| ≤ amplitude."""
     out = []
     for s in strokes:
@@ -161,8 +165,7 @@ def wobble(strokes: Strokes, rng: np.random.Generator, amplitude: float, wavelen
     return out
 
 
-def overdraw(strokes: Strokes, rng: np.random.Generator, prob: float, max_copies: int,
-             offset: float) -> Strokes:
+def overdraw(strokes: Strokes, rng: np.random.Generator, prob: float, max_copies: int, offset: float) -> Strokes:
     """With ``prob`` per stroke, add 1..max_copies re-drawn copies, shifted by ≤ ``offset`` px
     and each covering a random 60–100 % of the stroke (a hand going over a line again)."""
     out = []
@@ -182,8 +185,7 @@ def overdraw(strokes: Strokes, rng: np.random.Generator, prob: float, max_copies
     return out
 
 
-def augment_strokes(strokes: Strokes, rng: np.random.Generator, settings: AugmentSettings
-                    ) -> Strokes:
+def augment_strokes(strokes: Strokes, rng: np.random.Generator, settings: AugmentSettings) -> Strokes:
     """The full augmentation chain of one variant, in a fixed order.
 
     ``strokes`` should be densely sampled (``resample_strokes``, done once per view) so that

@@ -61,21 +61,20 @@ def ink_mask(gray: np.ndarray, settings: VectorizeSettings) -> np.ndarray:
     frac = float(mask.mean())
     if frac > settings.max_ink_fraction:
         raise VectorizeError(
-            f"{100 * frac:.0f}% of pixels are ink (> {100 * settings.max_ink_fraction:.0f}%): "
-            "not a line drawing")
+            f"{100 * frac:.0f}% of pixels are ink (> {100 * settings.max_ink_fraction:.0f}%): not a line drawing"
+        )
     return mask
 
 
 @dataclasses.dataclass
 class _Branch:
-    points: np.ndarray          # (n, 2) uv, ordered from start to end
-    ends: list                  # [start vertex, end vertex]; vertex = ("J", cluster) | ("T", node)
+    points: np.ndarray  # (n, 2) uv, ordered from start to end
+    ends: list  # [start vertex, end vertex]; vertex = ("J", cluster) | ("T", node)
     length: float
     alive: bool = True
 
 
-def vectorize(image: np.ndarray, settings: VectorizeSettings = VectorizeSettings()
-              ) -> list[np.ndarray]:
+def vectorize(image: np.ndarray, settings: VectorizeSettings = VectorizeSettings()) -> list[np.ndarray]:
     """Centerline strokes of a line drawing. Blank image → []; mostly ink → VectorizeError."""
     gray = to_gray(image)
     mask = ink_mask(gray, settings)
@@ -93,8 +92,7 @@ def vectorize(image: np.ndarray, settings: VectorizeSettings = VectorizeSettings
     for pts, closed in chains:
         if polyline_length(pts) < settings.min_stroke_length:
             continue
-        strokes.append(simplify(_smooth_keeping_corners(pts, closed, settings),
-                                settings.simplify_epsilon))
+        strokes.append(simplify(_smooth_keeping_corners(pts, closed, settings), settings.simplify_epsilon))
     return strokes
 
 
@@ -133,8 +131,7 @@ def _corners(pts: np.ndarray, reach: float, min_angle_deg: float) -> list[int]:
     return sorted(picked)
 
 
-def _smooth_keeping_corners(pts: np.ndarray, closed: bool, settings: VectorizeSettings
-                            ) -> np.ndarray:
+def _smooth_keeping_corners(pts: np.ndarray, closed: bool, settings: VectorizeSettings) -> np.ndarray:
     """Smooth a pixel chain piecewise between its sharp corners, each corner re-snapped to the
     crossing of the lines fitted on either side (thinning cuts corners of thick lines)."""
     reach = settings.tangent_length / 2
@@ -147,7 +144,7 @@ def _smooth_keeping_corners(pts: np.ndarray, closed: bool, settings: VectorizeSe
             out = smooth(pts, settings.smooth_sigma, closed=True)
             return np.concatenate([out, out[:1]])
         start = inner[0]
-        pts = np.concatenate([pts[start:], pts[:start], pts[start:start + 1]])
+        pts = np.concatenate([pts[start:], pts[:start], pts[start : start + 1]])
     corners = _corners(pts, reach, settings.corner_angle_deg)
     pts = pts.copy()
     s = cumulative_length(pts)
@@ -173,7 +170,7 @@ def _smooth_keeping_corners(pts: np.ndarray, closed: bool, settings: VectorizeSe
     for i, x in snapped.items():
         pts[i] = x
     cuts = [0] + corners + [len(pts) - 1]
-    pieces = [smooth(pts[a:b + 1], settings.smooth_sigma) for a, b in zip(cuts[:-1], cuts[1:])]
+    pieces = [smooth(pts[a : b + 1], settings.smooth_sigma) for a, b in zip(cuts[:-1], cuts[1:])]
     return np.concatenate([pieces[0]] + [p[1:] for p in pieces[1:]])
 
 
@@ -206,8 +203,9 @@ def _skeleton_branches(skel: np.ndarray, settings: VectorizeSettings):
         members.setdefault(find(n), []).append(n)
     cluster_of = {n: cid for cid, root in enumerate(sorted(members)) for n in members[root]}
     centers = np.array([uv[members[root]].mean(axis=0) for root in sorted(members)]).reshape(-1, 2)
-    radii = np.array([np.linalg.norm(uv[members[root]] - uv[members[root]].mean(axis=0), axis=1).max()
-                      for root in sorted(members)])
+    radii = np.array(
+        [np.linalg.norm(uv[members[root]] - uv[members[root]].mean(axis=0), axis=1).max() for root in sorted(members)]
+    )
 
     branches = []
     for p, length in zip(paths, lengths):
@@ -239,9 +237,10 @@ def _prune_spurs(branches: list[_Branch], settings: VectorizeSettings) -> None:
         changed = False
         count = _incidence(branches)
         spurs = sorted(
-            (b.length, i) for i, b in enumerate(branches)
-            if b.alive and b.length < settings.spur_length
-            and {v[0] for v in b.ends} == {"T", "J"})
+            (b.length, i)
+            for i, b in enumerate(branches)
+            if b.alive and b.length < settings.spur_length and {v[0] for v in b.ends} == {"T", "J"}
+        )
         for _, i in spurs:
             j = next(v for v in branches[i].ends if v[0] == "J")
             if count.get(j, 0) > 2:
@@ -258,8 +257,9 @@ def _end_points(b: _Branch, end: int) -> np.ndarray:
 def _end_tangent(pts: np.ndarray, center: np.ndarray, radius: float, length: float):
     """(near point, unit direction) of a branch leaving a junction, skipping distorted pixels."""
     near = pts[: int(2 * (radius + length)) + 6]  # only the part near the junction matters
-    first, d = _end_offset(np.ascontiguousarray(near, np.float64), float(center[0]), float(center[1]),
-                           float(radius), float(length))
+    first, d = _end_offset(
+        np.ascontiguousarray(near, np.float64), float(center[0]), float(center[1]), float(radius), float(length)
+    )
     n = np.linalg.norm(d)  # numpy's own 2-vector norm: the compiled loop would round it differently
     return first, (d / n if n > 1e-9 else np.zeros(2))
 
@@ -280,15 +280,17 @@ def _end_offset(pts, cx, cy, radius, length):
         return pts[start].copy(), pts[m - 1] - pts[0]
     s = np.zeros(count)
     for i in range(1, count):
-        s[i] = s[i - 1] + math.hypot(pts[start + i, 0] - pts[start + i - 1, 0],
-                                     pts[start + i, 1] - pts[start + i - 1, 1])
+        s[i] = s[i - 1] + math.hypot(
+            pts[start + i, 0] - pts[start + i - 1, 0], pts[start + i, 1] - pts[start + i - 1, 1]
+        )
     k = np.searchsorted(s, min(length, s[-1]))
     k = min(max(k, 1), count - 1)
     return pts[start].copy(), pts[start + k] - pts[start]
 
 
-def _chain(branches: list[_Branch], centers: np.ndarray, radii: np.ndarray,
-           settings: VectorizeSettings) -> list[tuple[np.ndarray, bool]]:
+def _chain(
+    branches: list[_Branch], centers: np.ndarray, radii: np.ndarray, settings: VectorizeSettings
+) -> list[tuple[np.ndarray, bool]]:
     """Pair branch ends at each junction by tangent continuity and walk the pairs into strokes."""
     alive = [i for i, b in enumerate(branches) if b.alive]
     at_junction: dict[int, list[tuple[int, int]]] = {}
@@ -302,15 +304,14 @@ def _chain(branches: list[_Branch], centers: np.ndarray, radii: np.ndarray,
     cos_join = np.cos(np.radians(settings.join_angle_deg))
     for c, ends in sorted(at_junction.items()):
         center, radius = centers[c], radii[c]
-        tang = [_end_tangent(_end_points(branches[i], e), center, radius, settings.tangent_length)
-                for i, e in ends]
+        tang = [_end_tangent(_end_points(branches[i], e), center, radius, settings.tangent_length) for i, e in ends]
         snap[c] = _snap_point(center, tang, settings.snap_radius)
         if len(ends) == 2:
             partner[ends[0]], partner[ends[1]] = ends[1], ends[0]
             continue
         pairs = sorted(
-            (float(np.dot(tang[a][1], tang[b][1])), a, b)
-            for a in range(len(ends)) for b in range(a + 1, len(ends)))
+            (float(np.dot(tang[a][1], tang[b][1])), a, b) for a in range(len(ends)) for b in range(a + 1, len(ends))
+        )
         used: set[int] = set()
         for cos_ab, a, b in pairs:
             if cos_ab > -cos_join:
@@ -383,8 +384,7 @@ def _chain(branches: list[_Branch], centers: np.ndarray, radii: np.ndarray,
     return chains
 
 
-def _link_gaps(chains: list[tuple[np.ndarray, bool]], settings: VectorizeSettings
-               ) -> list[tuple[np.ndarray, bool]]:
+def _link_gaps(chains: list[tuple[np.ndarray, bool]], settings: VectorizeSettings) -> list[tuple[np.ndarray, bool]]:
     """Join open strokes whose ends face each other across a small gap (broken render lines).
 
     Greedy, shortest gap first; a stroke whose two ends meet is closed into a loop.
@@ -404,8 +404,7 @@ def _link_gaps(chains: list[tuple[np.ndarray, bool]], settings: VectorizeSetting
         add(k, np.asarray(pts), closed)
     next_id = len(chains)
     while True:
-        ends = [(k, e) for k in sorted(strokes) if not strokes[k][1] and len(strokes[k][0]) >= 2
-                for e in (0, 1)]
+        ends = [(k, e) for k in sorted(strokes) if not strokes[k][1] and len(strokes[k][0]) >= 2 for e in (0, 1)]
         if len(ends) < 2:
             break
         pos = np.array([strokes[k][2 + e][0] for k, e in ends])
@@ -433,7 +432,7 @@ def _link_gaps(chains: list[tuple[np.ndarray, bool]], settings: VectorizeSetting
             strokes[ka][1] = True
             continue
         pa, pb = strokes.pop(ka)[0], strokes.pop(kb)[0]
-        first = pa[::-1] if ea == 0 else pa   # ... ends at the linked end
+        first = pa[::-1] if ea == 0 else pa  # ... ends at the linked end
         second = pb if eb == 0 else pb[::-1]  # starts at the linked end
         add(next_id, np.concatenate([first, second]), False)
         next_id += 1

@@ -56,6 +56,7 @@ def main() -> int:
     args = ap.parse_args()
     try:
         import torch  # noqa: F401  (only to pin its threads if something imports it)
+
         torch.set_num_threads(1)
     except ImportError:
         pass
@@ -72,8 +73,10 @@ def main() -> int:
         return 1
     vectorize(load_gray(views[0][2]))  # numba (skan) compiles on first use: not timed
 
-    settings = {128: AugmentSettings(variants=args.variants),
-                512: AugmentSettings(variants=args.variants, out_size=512)}
+    settings = {
+        128: AugmentSettings(variants=args.variants),
+        512: AugmentSettings(variants=args.variants, out_size=512),
+    }
     t_vec, t_ref, t_aug, t_ras, f1s = [], [], [], {128: [], 512: []}, []
     by_cat: dict[str, list[dict]] = {}
     for rep in range(args.repeats):
@@ -95,13 +98,15 @@ def main() -> int:
                 t_aug.append(ms)
                 for size, st in settings.items():
                     out = [s * (size / REFERENCE_SIZE) for s in aug]
-                    _, ms = timed(draw_pencil, out, size, st.width_for(k) * size / REFERENCE_SIZE,
-                                  rng_for(*key, "pencil"), st)
+                    _, ms = timed(
+                        draw_pencil, out, size, st.width_for(k) * size / REFERENCE_SIZE, rng_for(*key, "pencil"), st
+                    )
                     t_ras[size].append(ms)
     med = statistics.median
     per_variant = med(t_vec) / args.variants + med(t_ref) / args.variants + med(t_aug) + med(t_ras[128])
-    print(f"views: {len(views)} from {render_dir} (256² renders), variants/view: {args.variants}, "
-          f"repeats: {args.repeats}")
+    print(
+        f"views: {len(views)} from {render_dir} (256² renders), variants/view: {args.variants}, repeats: {args.repeats}"
+    )
     print(f"vectorize            {med(t_vec):7.2f} ms / view  (256² in)")
     print(f"resample to curves   {med(t_ref):7.2f} ms / view")
     print(f"augment strokes      {med(t_aug):7.2f} ms / variant")
@@ -113,9 +118,11 @@ def main() -> int:
         print("category     views  meanF1(2px)  minF1(2px)  meanF1(1px)  minPrecision  median count ratio")
         for cat, qs in sorted(by_cat.items()):
             f = [q["f1"] for q in qs]
-            print(f"{cat:12s} {len(qs):5d}  {np.mean(f):11.3f}  {min(f):10.3f}  "
-                  f"{np.mean([q['f1_tol1'] for q in qs]):11.3f}  {min(q['precision'] for q in qs):12.3f}  "
-                  f"{med([q['count_ratio'] for q in qs]):18.2f}")
+            print(
+                f"{cat:12s} {len(qs):5d}  {np.mean(f):11.3f}  {min(f):10.3f}  "
+                f"{np.mean([q['f1_tol1'] for q in qs]):11.3f}  {min(q['precision'] for q in qs):12.3f}  "
+                f"{med([q['count_ratio'] for q in qs]):18.2f}"
+            )
     if tmp is not None:
         tmp.cleanup()
     return 0

@@ -62,8 +62,10 @@ def main() -> None:
             dt, value, grad = run(fn)
             times.append(dt)
         results[name] = (statistics.median(times), value, grad)
-        print(f"{name:12s} median {statistics.median(times) * 1000:8.1f} ms  (batch {args.batch}, "
-              f"{tpl.num_patches * k2} patch samples x {args.points} target points)")
+        print(
+            f"{name:12s} median {statistics.median(times) * 1000:8.1f} ms  (batch {args.batch}, "
+            f"{tpl.num_patches * k2} patch samples x {args.points} target points)"
+        )
     (tk, vk, gk), (td, vd, gd) = results["kdtree"], results["dense_cdist"]
     print(f"max |value diff| {float((vk - vd).abs().max()):.2e}   max |grad diff| {float((gk - gd).abs().max()):.2e}")
     print(f"speed-up dense/kdtree: {td / tk:.2f}x")

@@ -46,8 +46,13 @@ SHAPENET_CATEGORIES = "airplane,bathtub,bottle,car,guitar,gun,knife,mug"
 def _root(args, tmp: Path):
     from workflows.tasks import BuildDataset
 
-    return BuildDataset(categories=args.categories, models_per_category=args.models, batch_size=args.batch_size,
-                        work_dir=str(tmp / "work"), dataset_dir=str(tmp / "ds"))
+    return BuildDataset(
+        categories=args.categories,
+        models_per_category=args.models,
+        batch_size=args.batch_size,
+        work_dir=str(tmp / "work"),
+        dataset_dir=str(tmp / "ds"),
+    )
 
 
 def _cpu(fn, repeats: int) -> list[float]:
@@ -60,8 +65,10 @@ def _cpu(fn, repeats: int) -> list[float]:
 
 
 def _fmt(xs: list[float]) -> str:
-    return (f"median {1000 * statistics.median(xs):.2f} ms CPU "
-            f"(min {1000 * min(xs):.2f}, max {1000 * max(xs):.2f}, n={len(xs)})")
+    return (
+        f"median {1000 * statistics.median(xs):.2f} ms CPU "
+        f"(min {1000 * min(xs):.2f}, max {1000 * max(xs):.2f}, n={len(xs)})"
+    )
 
 
 def _mid_build(root, listings: list[dict]) -> None:
@@ -94,9 +101,11 @@ def tick(args) -> None:
         t0 = time.process_time()
         listings = root.listings()
         n = sum(len(x["models"]) for x in listings)
-        print(f"{n} models in {len(listings)} categories, batch size {s.batch_size}: "
-              f"{sum(steps.n_batches(len(x['models']), s.batch_size) for x in listings)} batches per stage "
-              f"(listing {time.process_time() - t0:.2f} s CPU)")
+        print(
+            f"{n} models in {len(listings)} categories, batch size {s.batch_size}: "
+            f"{sum(steps.n_batches(len(x['models']), s.batch_size) for x in listings)} batches per stage "
+            f"(listing {time.process_time() - t0:.2f} s CPU)"
+        )
         old = None
         if args.old:
             spec = importlib.util.spec_from_file_location("console_old", args.old)
@@ -135,9 +144,9 @@ def tick(args) -> None:
 
 def _no_op_steps() -> None:
     """Replace the stages' work in this process (only here: the benchmark measures the rest)."""
-    from workflows.listing import list_path, procedural_tag
     from pipeline.core.atomic import write_json
     from workflows import steps, tasks
+    from workflows.listing import list_path, procedural_tag
 
     def write_source_list(s, category):
         write_json(list_path(s, category, procedural_tag(s)), {"category": category, "models": []})
@@ -145,19 +154,26 @@ def _no_op_steps() -> None:
 
     def batch_step(stage):
         def run(s, lst, batch, progress=None, *_):
-            outcomes = [{"model_id": m["model_id"], "work_id": m["work_id"], "stage": stage, "status": "failed",
-                         "error": {"path": m["path"], "reason": "no-op (bench_console.py --schedule)"}}
-                        for m in steps.batch_models(s, lst, batch)]
+            outcomes = [
+                {
+                    "model_id": m["model_id"],
+                    "work_id": m["work_id"],
+                    "stage": stage,
+                    "status": "failed",
+                    "error": {"path": m["path"], "reason": "no-op (bench_console.py --schedule)"},
+                }
+                for m in steps.batch_models(s, lst, batch)
+            ]
             return steps._write_batch(s, stage, lst, batch, outcomes, time.perf_counter())
+
         return run
 
     steps.write_source_list = write_source_list
-    steps.prepare_step, steps.render_step, steps.augment_step = (batch_step(x)
-                                                                 for x in ("prepare", "render", "augment"))
+    steps.prepare_step, steps.render_step, steps.augment_step = (
+        batch_step(x) for x in ("prepare", "render", "augment")
+    )
     steps.too_many_failures = lambda *a, **k: []
     assert tasks.steps is steps
-
-
 
 
 def schedule(args) -> None:
@@ -180,16 +196,21 @@ def schedule(args) -> None:
                 # one in-process worker adds the whole graph (complete() of every task) before it runs any
                 walk = events[luigi.Event.START][0] - w0 if events.get(luigi.Event.START) else wall
                 present = len(events.get(luigi.Event.DEPENDENCY_PRESENT, []))
-                print(f"{i + 1}. {run}: ok={ok}, {ran} tasks ran, {present} "
-                      f"found complete, {len(events.get(luigi.Event.FAILURE, []))} failed; wall {wall:.1f} s "
-                      f"(graph walk before the first task {walk:.1f} s), CPU {cpu:.1f} s"
-                      + (f", {1000 * cpu / ran:.1f} ms CPU per task" if ran else ""), flush=True)
+                print(
+                    f"{i + 1}. {run}: ok={ok}, {ran} tasks ran, {present} "
+                    f"found complete, {len(events.get(luigi.Event.FAILURE, []))} failed; wall {wall:.1f} s "
+                    f"(graph walk before the first task {walk:.1f} s), CPU {cpu:.1f} s"
+                    + (f", {1000 * cpu / ran:.1f} ms CPU per task" if ran else ""),
+                    flush=True,
+                )
                 if ran:
                     walls.append(wall), cpus.append(cpu), walks.append(walk)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-    print(f"from scratch, median of {len(walls)}: wall {statistics.median(walls):.1f} s, graph walk "
-          f"{statistics.median(walks):.1f} s, CPU {statistics.median(cpus):.1f} s")
+    print(
+        f"from scratch, median of {len(walls)}: wall {statistics.median(walls):.1f} s, graph walk "
+        f"{statistics.median(walks):.1f} s, CPU {statistics.median(cpus):.1f} s"
+    )
 
 
 def main() -> None:

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_pipeline import write_corpus  # noqa: E402  (this folder is on the path when run as a script)
+
 from pipeline.core.atomic import write_json  # noqa: E402
 from pipeline.prepare.watertight import clean_solid, decimate, make_watertight, pull_to_source  # noqa: E402
 from pipeline.sources.mesh_io import load_mesh  # noqa: E402
@@ -54,11 +55,21 @@ def measure(path: Path, configs: list[tuple[int, int, float]]) -> list[dict]:
         d = tree.query(points)[0] / radius
         nearest = pcu.closest_points_on_mesh(points, np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int32))[1]
         cos = np.abs((mesh.face_normals[face_index] * src.face_normals[nearest]).sum(axis=1))
-        rows.append({"watertight_s": t1 - t0, "pull_s": tp - t1, "decimate_s": t2 - tp, "clean_s": t3 - t2,
-                     "distance_mean": float(d.mean()), "distance_p95": float(np.percentile(d, 95)),
-                     "normal_cos": float(cos.mean()), "bodies": int(mesh.body_count),
-                     "envelope_faces": int(len(wf)), "faces": int(len(mesh.faces)),
-                     "watertight": bool(mesh.is_watertight)})
+        rows.append(
+            {
+                "watertight_s": t1 - t0,
+                "pull_s": tp - t1,
+                "decimate_s": t2 - tp,
+                "clean_s": t3 - t2,
+                "distance_mean": float(d.mean()),
+                "distance_p95": float(np.percentile(d, 95)),
+                "normal_cos": float(cos.mean()),
+                "bodies": int(mesh.body_count),
+                "envelope_faces": int(len(wf)),
+                "faces": int(len(mesh.faces)),
+                "watertight": bool(mesh.is_watertight),
+            }
+        )
     return rows
 
 
@@ -77,16 +88,24 @@ def main() -> int:
     for i, (resolution, max_faces, pull) in enumerate(configs):
         rows = [m[i] for m in per_model]
         mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "watertight"}
-        mean.update(resolution=resolution, max_faces=max_faces, pull_to_source=pull, models=len(rows),
-                    all_watertight=all(r["watertight"] for r in rows))
+        mean.update(
+            resolution=resolution,
+            max_faces=max_faces,
+            pull_to_source=pull,
+            models=len(rows),
+            all_watertight=all(r["watertight"] for r in rows),
+        )
         results.append(mean)
         cost = mean["watertight_s"] + mean["pull_s"] + mean["decimate_s"] + mean["clean_s"]
-        print(f"resolution {resolution:5d}, max_faces {max_faces:5d}, pull {pull:.2f}: {cost:.3f} CPU s per model "
-              f"(envelope {mean['watertight_s']:.3f}, pull {mean['pull_s']:.3f}, decimate {mean['decimate_s']:.3f}, "
-              f"clean {mean['clean_s']:.3f}); envelope to source mean {mean['distance_mean'] * 1000:.1f}, p95 "
-              f"{mean['distance_p95'] * 1000:.1f} (x1e-3 radius); normal |cos| {mean['normal_cos']:.3f}; "
-              f"{mean['bodies'] * len(rows):.0f} bodies in all; {mean['faces']:.0f} faces; all watertight: "
-              f"{mean['all_watertight']}", flush=True)
+        print(
+            f"resolution {resolution:5d}, max_faces {max_faces:5d}, pull {pull:.2f}: {cost:.3f} CPU s per model "
+            f"(envelope {mean['watertight_s']:.3f}, pull {mean['pull_s']:.3f}, decimate {mean['decimate_s']:.3f}, "
+            f"clean {mean['clean_s']:.3f}); envelope to source mean {mean['distance_mean'] * 1000:.1f}, p95 "
+            f"{mean['distance_p95'] * 1000:.1f} (x1e-3 radius); normal |cos| {mean['normal_cos']:.3f}; "
+            f"{mean['bodies'] * len(rows):.0f} bodies in all; {mean['faces']:.0f} faces; all watertight: "
+            f"{mean['all_watertight']}",
+            flush=True,
+        )
     if args.out:
         write_json(args.out, results)
     return 0

@@ -56,8 +56,16 @@ def fit_to_targets(objective: Objective, batch: dict, steps: int, lr: float = 0.
     return params.detach()
 
 
-def fit_ceiling(dataset: str, category: str, template_name: str, split: str = "test", shapes: int = 16,
-                steps: int = 300, lr: float = 0.01, n_points: int = 4000) -> dict:  # fmt: skip
+def fit_ceiling(
+    dataset: str,
+    category: str,
+    template_name: str,
+    split: str = "test",
+    shapes: int = 16,
+    steps: int = 300,
+    lr: float = 0.01,
+    n_points: int = 4000,
+) -> dict:
     template = load_template(template_name)
     objective = Objective(template, n_points)
     batch = _batch(dataset, category, split, n_points, shapes)
@@ -67,9 +75,18 @@ def fit_ceiling(dataset: str, category: str, template_name: str, split: str = "t
     with torch.no_grad():
         tpl = _plain_chamfer(objective, start, batch)
         fitted = _plain_chamfer(objective, params, batch)
-    return {"category": category, "template": template_name, "patches": template.num_patches, "split": split,
-            "shapes": b, "steps": steps, "lr": lr, "points": n_points,
-            "template_chamfer": float(tpl.mean()), "fitted_chamfer": float(fitted.mean())}  # fmt: skip
+    return {
+        "category": category,
+        "template": template_name,
+        "patches": template.num_patches,
+        "split": split,
+        "shapes": b,
+        "steps": steps,
+        "lr": lr,
+        "points": n_points,
+        "template_chamfer": float(tpl.mean()),
+        "fitted_chamfer": float(fitted.mean()),
+    }
 
 
 def main() -> None:

@@ -27,14 +27,14 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline.core.atomic import read_json  # noqa: E402
-from pipeline.core.stage_keys import stage_key  # noqa: E402
-from pipeline.core.records import read_record  # noqa: E402
-from pipeline.prepare.line_mesh import line_mesh  # noqa: E402
-from pipeline.sources.mesh_io import load_mesh  # noqa: E402
-from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE  # noqa: E402
-from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
 from pipeline.core.images import save_png  # noqa: E402
+from pipeline.core.records import read_record  # noqa: E402
+from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE  # noqa: E402
+from pipeline.core.stage_keys import stage_key  # noqa: E402
+from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
+from pipeline.prepare.line_mesh import line_mesh  # noqa: E402
 from pipeline.sources.layouts import list_categories, list_models  # noqa: E402
+from pipeline.sources.mesh_io import load_mesh  # noqa: E402
 from render.batch import render_batch  # noqa: E402
 from render.line_fidelity import ViewScore, score_view  # noqa: E402
 from render.settings import RenderSettings  # noqa: E402
@@ -65,8 +65,15 @@ def model_scores(prep_dir: Path, render_dirs: dict[str, Path], turn_deg: float) 
     return out
 
 
-def run(source: str, categories: list[str], per_category: int, work: Path, settings: RenderSettings,
-        seed: int = 0, sheet_per_category: int = 1) -> tuple[dict, list]:
+def run(
+    source: str,
+    categories: list[str],
+    per_category: int,
+    work: Path,
+    settings: RenderSettings,
+    seed: int = 0,
+    sheet_per_category: int = 1,
+) -> tuple[dict, list]:
     prep_settings = PrepareSettings()
     prep_key = stage_key("prepare", prep_settings)
     results: dict[str, dict[str, list[ViewScore]]] = {}
@@ -81,8 +88,14 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
         stages = {}
         for name, file in DRAWN.items():
             stages[name] = work / f"lines-{name}-{stage_key('render', settings, prep_key)}"
-            render_batch(cat, [(m, work / prep_key / cat / m / file) for m in ok], stages[name],
-                         settings, seed, progress=_progress)
+            render_batch(
+                cat,
+                [(m, work / prep_key / cat / m / file) for m in ok],
+                stages[name],
+                settings,
+                seed,
+                progress=_progress,
+            )
         results[cat] = {name: [] for name in DRAWN}
         for k, m in enumerate(ok):
             dirs = {name: stages[name] / cat / m for name in DRAWN}
@@ -94,35 +107,52 @@ def run(source: str, categories: list[str], per_category: int, work: Path, setti
                 rec = read_record(dirs[name])
                 s.faces, s.cpu_per_view = rec["mesh"]["n_faces"], statistics.median(rec["timings"]["views_cpu_s"])
                 results[cat][name].append(s)
-            print(f"{cat}/{m}: " + ", ".join(f"{n} recall {s.recall:.3f} precision {s.precision:.3f}"
-                                              f" outline {s.outline_recall:.3f}"
-                                              for n, s in scores.items()), flush=True)
+            print(
+                f"{cat}/{m}: "
+                + ", ".join(
+                    f"{n} recall {s.recall:.3f} precision {s.precision:.3f} outline {s.outline_recall:.3f}"
+                    for n, s in scores.items()
+                ),
+                flush=True,
+            )
             for name, d in dirs.items() if k < sheet_per_category else ():
                 views = sorted(d.glob("view_*.png"))
-                sheet_rows.append([(np.asarray(Image.open(p).convert("L")), f"{cat}/{m} {name} v{i}")
-                                   for i, p in enumerate(views)])
+                sheet_rows.append(
+                    [(np.asarray(Image.open(p).convert("L")), f"{cat}/{m} {name} v{i}") for i, p in enumerate(views)]
+                )
     return results, sheet_rows
 
 
 def table(results: dict) -> str:
     """Medians per category: recall, precision, triangles drawn and render CPU s per view."""
-    lines = ["| category | models | sharp-edge recall before → after | precision before → after |"
-             " outline recall before → after | triangles before → after | CPU s/view before → after |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| category | models | sharp-edge recall before → after | precision before → after |"
+        " outline recall before → after | triangles before → after | CPU s/view before → after |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for cat, by in results.items():
         if not by["after"]:
             continue
-        med = {n: [statistics.median(getattr(s, k) for s in by[n]) for k in ("recall", "precision", "outline_recall", "faces", "cpu_per_view")]
-               for n in DRAWN}
+        med = {
+            n: [
+                statistics.median(getattr(s, k) for s in by[n])
+                for k in ("recall", "precision", "outline_recall", "faces", "cpu_per_view")
+            ]
+            for n in DRAWN
+        }
         b, a = med["before"], med["after"]
-        lines.append(f"| {cat} | {len(by['after'])} | {b[0]:.3f} → **{a[0]:.3f}** | {b[1]:.3f} → **{a[1]:.3f}** |"
-                     f" {b[2]:.3f} → {a[2]:.3f} | {b[3]:.0f} → {a[3]:.0f} | {b[4]:.3f} → {a[4]:.3f} |")
+        lines.append(
+            f"| {cat} | {len(by['after'])} | {b[0]:.3f} → **{a[0]:.3f}** | {b[1]:.3f} → **{a[1]:.3f}** |"
+            f" {b[2]:.3f} → {a[2]:.3f} | {b[3]:.0f} → {a[3]:.0f} | {b[4]:.3f} → {a[4]:.3f} |"
+        )
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--source", default="procedural", help="procedural, a ShapeNet root or a folder of <category>/ meshes")
+    ap.add_argument(
+        "--source", default="procedural", help="procedural, a ShapeNet root or a folder of <category>/ meshes"
+    )
     ap.add_argument("--categories", nargs="*", default=None)
     ap.add_argument("--per-category", type=int, default=3)
     ap.add_argument("--views", type=int, default=4)
@@ -134,11 +164,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cats = args.categories or list_categories(args.source)
     settings = RenderSettings(views=args.views, image_size=args.size)
-    results, rows = run(args.source, cats, args.per_category, args.work, settings, args.seed,
-                        args.sheet_per_category)
-    print(f"\nsource {args.source}, {args.per_category} models per category, {args.views} views of"
-          f" {args.size}², crease threshold {180.0 - settings.crease_angle_deg:.2f}° turn, tolerance 2 px;"
-          " medians over models\n")
+    results, rows = run(args.source, cats, args.per_category, args.work, settings, args.seed, args.sheet_per_category)
+    print(
+        f"\nsource {args.source}, {args.per_category} models per category, {args.views} views of"
+        f" {args.size}², crease threshold {180.0 - settings.crease_angle_deg:.2f}° turn, tolerance 2 px;"
+        " medians over models\n"
+    )
     print(table(results))
     if args.sheet is not None and rows:
         save_png(args.sheet, sheet_of_rows(rows))

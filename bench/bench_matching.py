@@ -82,8 +82,10 @@ def main() -> None:
             times[name].append(time.process_time() - t)
     med = {k: statistics.median(v) for k, v in times.items()}
     print(f"first grid call (compile or cache load, import included): {first:.2f} s")
-    print(f"batch {a.batch_size}, both directions, median CPU s over {a.repeats}: "
-          f"kdtree {med['kdtree']:.4f}  grid {med['grid']:.4f}  ratio {med['kdtree'] / med['grid']:.2f}x")
+    print(
+        f"batch {a.batch_size}, both directions, median CPU s over {a.repeats}: "
+        f"kdtree {med['kdtree']:.4f}  grid {med['grid']:.4f}  ratio {med['kdtree'] / med['grid']:.2f}x"
+    )
 
 
 if __name__ == "__main__":

@@ -42,7 +42,9 @@ def collect(dataset: Path) -> dict[tuple[str, int], np.ndarray]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
+    p.add_argument(
+        "--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)"
+    )
     p.add_argument("--json", type=Path, default=None)
     a = p.parse_args()
     rows = {}
@@ -50,8 +52,10 @@ def main() -> None:
     for (c, k), v in sorted(collect(a.dataset).items()):
         dq, cq = np.percentile(v[:, 0], [10, 50, 90]), np.percentile(v[:, 1], [10, 50, 90])
         rows[f"{c}/{k}"] = {"n": len(v), "darkness": dq.round(3).tolist(), "cover": cq.round(4).tolist()}
-        print(f"{c:10s} {k:7d} {len(v):5d} {dq[0]:6.3f} {dq[1]:6.3f} {dq[2]:6.3f}   "
-              f"{100 * cq[0]:5.1f} {100 * cq[1]:5.1f} {100 * cq[2]:5.1f}")
+        print(
+            f"{c:10s} {k:7d} {len(v):5d} {dq[0]:6.3f} {dq[1]:6.3f} {dq[2]:6.3f}   "
+            f"{100 * cq[0]:5.1f} {100 * cq[1]:5.1f} {100 * cq[2]:5.1f}"
+        )
     print(f"paper's demo sketches: darkness {PAPER_DEMOS['darkness']}, cover {PAPER_DEMOS['cover']}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")

@@ -33,11 +33,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from augment.metrics import stroke_scores  # noqa: E402
 from pipeline.core.atomic import read_json, write_json  # noqa: E402
-from workflows.listing import current_listing  # noqa: E402
-from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.core.records import model_dir  # noqa: E402
 from pipeline.shapes import CATEGORIES  # noqa: E402
 from workflows import steps  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
+from workflows.listing import current_listing  # noqa: E402
 
 SHAPENET_MODELS = 12_721  # ShapeNet Core v2, the 8 categories
 
@@ -78,8 +78,11 @@ def run_stage(s: BuildSettings, stage: str, lists: dict[str, dict]) -> float:
             t = time.perf_counter()
             doc = getattr(steps, f"{stage}_step")(s, lists[cat], b)
             bad = [m for m in doc["models"] if m["status"] != "ok" and m["stage"] == stage]
-            print(f"  {stage:8s} {cat:9s} batch {b}: {len(doc['models']) - len(bad)} ok, {len(bad)} failed,"
-                  f" {time.perf_counter() - t:.1f} s wall", flush=True)
+            print(
+                f"  {stage:8s} {cat:9s} batch {b}: {len(doc['models']) - len(bad)} ok, {len(bad)} failed,"
+                f" {time.perf_counter() - t:.1f} s wall",
+                flush=True,
+            )
     if stage == "augment":
         for cat in CATEGORIES:
             steps.shards_step(s, lists[cat])
@@ -96,8 +99,11 @@ def view_figures(s: BuildSettings, lists: dict[str, dict]) -> dict:
                 views += rec["timings"]["views_cpu_s"]
                 loads.append(rec["timings"]["load_s"])
                 n_views.append(len(rec["timings"]["views_cpu_s"]))
-    return {"view_cpu_median": statistics.median(views), "load_median": statistics.median(loads),
-            "per_view_with_setup": statistics.median(views) + statistics.median(loads) / statistics.median(n_views)}
+    return {
+        "view_cpu_median": statistics.median(views),
+        "load_median": statistics.median(loads),
+        "per_view_with_setup": statistics.median(views) + statistics.median(loads) / statistics.median(n_views),
+    }
 
 
 def f1_per_category(fs: BuildSettings, em: BuildSettings, lists: dict[str, dict]) -> dict[str, list[float]]:
@@ -125,8 +131,11 @@ def main() -> int:
     ap.add_argument("--batch-size", type=int, default=16)
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_pipeline"))
     ap.add_argument("--backends", default="embree,freestyle")
-    ap.add_argument("--prepare-settings", default="{}",
-                    help='prepare overrides as JSON, e.g. \'{"resolution": 2000}\' (bench_envelope.py)')
+    ap.add_argument(
+        "--prepare-settings",
+        default="{}",
+        help="prepare overrides as JSON, e.g. '{\"resolution\": 2000}' (bench_envelope.py)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="also write the figures as JSON here")
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -137,29 +146,48 @@ def main() -> int:
     warm_stage_code()
     faces = write_corpus(args.work, args.per_category)
     sizes = sorted(faces.values())
-    print(f"corpus: {len(faces)} models, triangles min {sizes[0]}, median {sizes[len(sizes) // 2]}, max {sizes[-1]};"
-          f" {args.views} views x {args.variants} variants; load average {os.getloadavg()[0]:.1f} on"
-          f" {os.cpu_count()} cores", flush=True)
+    print(
+        f"corpus: {len(faces)} models, triangles min {sizes[0]}, median {sizes[len(sizes) // 2]}, max {sizes[-1]};"
+        f" {args.views} views x {args.variants} variants; load average {os.getloadavg()[0]:.1f} on"
+        f" {os.cpu_count()} cores",
+        flush=True,
+    )
 
     def settings(backend: str) -> BuildSettings:
-        return BuildSettings(source=str(args.work / "corpus"), models_per_category=0, views=args.views,
-                             variants=args.variants, render_overrides=json.dumps({"backend": backend}),
-                             prepare_overrides=args.prepare_settings,
-                             work_dir=args.work / "work", dataset_dir=args.work / f"ds-{backend}",
-                             batch_size=args.batch_size)
+        return BuildSettings(
+            source=str(args.work / "corpus"),
+            models_per_category=0,
+            views=args.views,
+            variants=args.variants,
+            render_overrides=json.dumps({"backend": backend}),
+            prepare_overrides=args.prepare_settings,
+            work_dir=args.work / "work",
+            dataset_dir=args.work / f"ds-{backend}",
+            batch_size=args.batch_size,
+        )
 
     backends = args.backends.split(",")
     first = settings(backends[0])
     lists = {cat: current_listing(first, cat) for cat in CATEGORIES}
     total = sum(len(lst["models"]) for lst in lists.values())
     prepare_s = run_stage(first, "prepare", lists)
-    n_ok = sum(1 for cat in CATEGORIES for m in lists[cat]["models"]
-               if (read_json(model_dir(first.stage_dir("prepare"), cat, m["work_id"]) / "record.json") or {})
-               .get("status") == "ok")
-    results = {"models": total, "prepared_ok": n_ok, "views": args.views, "variants": args.variants,
-               "prepare_settings": json.loads(args.prepare_settings),
-               "triangles": {"min": sizes[0], "median": sizes[len(sizes) // 2], "max": sizes[-1]},
-               "prepare_core_s_per_model": prepare_s / total, "backends": {}}
+    n_ok = sum(
+        1
+        for cat in CATEGORIES
+        for m in lists[cat]["models"]
+        if (read_json(model_dir(first.stage_dir("prepare"), cat, m["work_id"]) / "record.json") or {}).get("status")
+        == "ok"
+    )
+    results = {
+        "models": total,
+        "prepared_ok": n_ok,
+        "views": args.views,
+        "variants": args.variants,
+        "prepare_settings": json.loads(args.prepare_settings),
+        "triangles": {"min": sizes[0], "median": sizes[len(sizes) // 2], "max": sizes[-1]},
+        "prepare_core_s_per_model": prepare_s / total,
+        "backends": {},
+    }
     print(f"prepare: {prepare_s:.1f} core-s, {prepare_s / total:.3f} per model ({n_ok}/{total} ok)", flush=True)
     for backend in backends:
         s = settings(backend)
@@ -173,16 +201,20 @@ def main() -> int:
         print(f"{backend}: " + ", ".join(f"{k} {v:.3f}" for k, v in per.items()), flush=True)
     if {"embree", "freestyle"} <= set(backends):
         f1 = f1_per_category(settings("freestyle"), settings("embree"), lists)
-        results["f1"] = {cat: {"views": len(v), "median": statistics.median(v), "min": min(v),
-                               "mean": float(np.mean(v))} for cat, v in f1.items()}
+        results["f1"] = {
+            cat: {"views": len(v), "median": statistics.median(v), "min": min(v), "mean": float(np.mean(v))}
+            for cat, v in f1.items()
+        }
         fs, em = results["backends"]["freestyle"], results["backends"]["embree"]
         results["speedup_per_view"] = fs["view_cpu_median"] / em["view_cpu_median"]
         results["speedup_per_view_with_setup"] = fs["per_view_with_setup"] / em["per_view_with_setup"]
         for cat, v in results["f1"].items():
             print(f"F1 {cat:9s} median {v['median']:.3f} min {v['min']:.3f} mean {v['mean']:.3f} ({v['views']} views)")
-        print(f"per view: freestyle {fs['view_cpu_median'] * 1000:.1f} ms CPU, embree {em['view_cpu_median'] * 1000:.1f} ms"
-              f" ({results['speedup_per_view']:.1f}x); with the embree set-up amortized over the views"
-              f" {em['per_view_with_setup'] * 1000:.1f} ms ({results['speedup_per_view_with_setup']:.1f}x)")
+        print(
+            f"per view: freestyle {fs['view_cpu_median'] * 1000:.1f} ms CPU, embree {em['view_cpu_median'] * 1000:.1f} ms"
+            f" ({results['speedup_per_view']:.1f}x); with the embree set-up amortized over the views"
+            f" {em['per_view_with_setup'] * 1000:.1f} ms ({results['speedup_per_view_with_setup']:.1f}x)"
+        )
     results["load_average_end"] = os.getloadavg()[0]
     if args.out:
         write_json(args.out, results)

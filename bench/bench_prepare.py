@@ -35,7 +35,9 @@ from pipeline.prepare.batch import PrepareSettings, prepare_model  # noqa: E402
 def soup_with_faces(target: int) -> trimesh.Trimesh:
     """Fuselage + thin wings + tail + cockpit box, overlapping, with holes, exactly ``target`` faces."""
     parts = [
-        trimesh.creation.cylinder(0.12, 1.6, sections=24, transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])),
+        trimesh.creation.cylinder(
+            0.12, 1.6, sections=24, transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])
+        ),
         trimesh.creation.box((0.35, 0.015, 1.8)),
         trimesh.creation.box((0.15, 0.4, 0.02), transform=trimesh.transformations.translation_matrix([-0.7, 0.2, 0])),
         trimesh.creation.box((0.3, 0.2, 0.2), transform=trimesh.transformations.translation_matrix([0.5, 0.1, 0])),
@@ -87,16 +89,23 @@ def main() -> None:
     if args.one:
         print(json.dumps(run_one(args.one, args.repeats)))
         return
-    print(f"{'input faces':>12} {'wt faces':>9} {'out faces':>9} {'median s':>9} {'min s':>7} {'median cpu s':>12} {'peak RSS MB':>12}")
+    print(
+        f"{'input faces':>12} {'wt faces':>9} {'out faces':>9} {'median s':>9} {'min s':>7} {'median cpu s':>12} {'peak RSS MB':>12}"
+    )
     for size in args.sizes:
         out = subprocess.run(
             [sys.executable, __file__, "--one", str(size), "--repeats", str(args.repeats)],
-            check=True, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
+            check=True,
+            capture_output=True,
+            text=True,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
         )
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        print(f"{r['input_faces']:>12} {r['watertight_faces']:>9} {r['output_faces']:>9} {r['median_s']:>9.3f} "
-              f"{r['min_s']:>7.3f} {r['median_cpu_s']:>12.3f} {r['peak_rss_mb']:>12.0f}   (RSS after imports {r['rss_after_imports_mb']:.0f} MB; "
-              f"last run stages {r['stages_s']})")
+        print(
+            f"{r['input_faces']:>12} {r['watertight_faces']:>9} {r['output_faces']:>9} {r['median_s']:>9.3f} "
+            f"{r['min_s']:>7.3f} {r['median_cpu_s']:>12.3f} {r['peak_rss_mb']:>12.0f}   (RSS after imports {r['rss_after_imports_mb']:.0f} MB; "
+            f"last run stages {r['stages_s']})"
+        )
 
 
 if __name__ == "__main__":

@@ -62,8 +62,10 @@ def car_meshes(work: Path) -> dict[str, trimesh.Trimesh]:
     if rec["status"] != "ok":
         return {}
     folder = work / "prepare" / "car" / refs[0].model_id
-    return {name: trimesh.load(folder / file, force="mesh", process=False)
-            for name, file in (("car", MESH_FILE), ("carsrc", LINE_MESH_FILE))}
+    return {
+        name: trimesh.load(folder / file, force="mesh", process=False)
+        for name, file in (("car", MESH_FILE), ("carsrc", LINE_MESH_FILE))
+    }
 
 
 def main() -> int:
@@ -73,8 +75,9 @@ def main() -> int:
     ap.add_argument("--flat", action="store_true", help="flat shading (smooth_shading=False)")
     ap.add_argument("--backend", default="freestyle", choices=BACKENDS)
     args = ap.parse_args()
-    settings = RenderSettings(image_size=args.size, views=args.views, smooth_shading=not args.flat,
-                              backend=args.backend)
+    settings = RenderSettings(
+        image_size=args.size, views=args.views, smooth_shading=not args.flat, backend=args.backend
+    )
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         cars = car_meshes(work)
@@ -87,8 +90,10 @@ def main() -> int:
 
         # start-up: launch → the worker's "... ready in" progress message, one batch per target size
         startups = []
-        print(f"backend {settings.backend}, image {args.size}², {args.views} views per model, threads={settings.threads},"
-              f" smooth_shading={settings.smooth_shading}")
+        print(
+            f"backend {settings.backend}, image {args.size}², {args.views} views per model, threads={settings.threads},"
+            f" smooth_shading={settings.smooth_shading}"
+        )
         for n, items in items_by_target.items():
             t0 = time.perf_counter()
             marks: list[float] = []
@@ -105,9 +110,11 @@ def main() -> int:
             for (mid, _), rec in zip(items, recs):
                 assert rec["status"] == "ok", rec
                 views, cpu = rec["timings"]["views_s"], rec["timings"]["views_cpu_s"]
-                print(f"{mid:>14}: {rec['mesh']['n_faces']:>7} triangles  median {statistics.median(views):.3f} s/view"
-                      f" wall, {statistics.median(cpu):.3f} s/view CPU (min {min(cpu):.3f}, max {max(cpu):.3f}),"
-                      f" load {rec['timings']['load_s']:.3f} s, strokes/view {np.mean(rec['n_strokes']):.0f}")
+                print(
+                    f"{mid:>14}: {rec['mesh']['n_faces']:>7} triangles  median {statistics.median(views):.3f} s/view"
+                    f" wall, {statistics.median(cpu):.3f} s/view CPU (min {min(cpu):.3f}, max {max(cpu):.3f}),"
+                    f" load {rec['timings']['load_s']:.3f} s, strokes/view {np.mean(rec['n_strokes']):.0f}"
+                )
             cpu = {mid: statistics.median(rec["timings"]["views_cpu_s"]) for (mid, _), rec in zip(items, recs)}
             if f"car_{n}" in cpu and f"carsrc_{n}" in cpu:
                 print(f"  line mesh / envelope CPU per view at {n}: {cpu[f'carsrc_{n}'] / cpu[f'car_{n}']:.2f}")

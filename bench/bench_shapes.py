@@ -1,6 +1,6 @@
 """Time procedural shape generation and CPU thumbnails; prints medians.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/bench_shapes.py
+OMP_NUM_THREADS=1 .venv/bin/python bench/bench_shapes.py
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import time
 import numpy as np
 import trimesh
 
-from pipeline.shapes import CATEGORIES, generate
 from pipeline.core.thumbnails import render_mesh
+from pipeline.shapes import CATEGORIES, generate
 
 
 def median_time(fn, repeats: int) -> float:

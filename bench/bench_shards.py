@@ -27,9 +27,18 @@ def fake_model(root: Path, category: str, model_id: str, views: int = 4, variant
     prep, rend, aug = (root / s / category / model_id for s in ("prepare", "render", "augment"))
     pts = rng.normal(size=(16384, 6)).astype(np.float32)
     write_npy(prep / "samples.npy", pts)
-    write_json(prep / "record.json", {"status": "ok", "source": {"path": f"{model_id}.obj", "sha256": "0" * 64},
-                                      "normalization": {"center": [0, 0, 0], "scale": 1.0}})
-    write_json(rend / "cameras.json", {"image_size": 256, "views": [{"projection": rng.normal(size=(3, 4))} for _ in range(views)]})
+    write_json(
+        prep / "record.json",
+        {
+            "status": "ok",
+            "source": {"path": f"{model_id}.obj", "sha256": "0" * 64},
+            "normalization": {"center": [0, 0, 0], "scale": 1.0},
+        },
+    )
+    write_json(
+        rend / "cameras.json",
+        {"image_size": 256, "views": [{"projection": rng.normal(size=(3, 4))} for _ in range(views)]},
+    )
     write_json(rend / "record.json", {"status": "ok"})
     aug.mkdir(parents=True, exist_ok=True)
     strokes = []
@@ -70,10 +79,14 @@ def main() -> None:
             assert n == a.models
         total = sum(p.stat().st_size for p in list_shards(root / "ds0" / "mug"))
         w, rd = statistics.median(writes), statistics.median(reads)
-        print(f"models={a.models} shards={len(list_shards(root / 'ds0' / 'mug'))} bytes={total / 2**20:.1f} MiB "
-              f"({total / a.models / 1024:.0f} KiB/sample)")
-        print(f"write (assemble + tar + sha256 + publish): median {w:.3f} s = {a.models / w:.0f} samples/s, "
-              f"{total / w / 2**20:.0f} MiB/s")
+        print(
+            f"models={a.models} shards={len(list_shards(root / 'ds0' / 'mug'))} bytes={total / 2**20:.1f} MiB "
+            f"({total / a.models / 1024:.0f} KiB/sample)"
+        )
+        print(
+            f"write (assemble + tar + sha256 + publish): median {w:.3f} s = {a.models / w:.0f} samples/s, "
+            f"{total / w / 2**20:.0f} MiB/s"
+        )
         print(f"read back with webdataset + decode: median {rd:.3f} s = {a.models / rd:.0f} samples/s")
 
 

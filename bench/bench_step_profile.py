@@ -71,9 +71,20 @@ def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, 
         tn = evaluate_patches(objective.template_patches, st).normals[0]
     mask = objective.patch_mask(batch["meta"], dev)
     sym = objective.sym if objective.sym.numel() else None
-    x = TermInputs(objective.template.patches_from_params(params), st, batch["points"][..., :3], batch["points"][..., 3:],
-                   mask, tn, objective.template.points_from_params(params) if sym is not None else None, sym,
-                   objective.symmetry_valid(mask), objective.plane_x, objective.pairs, objective.groups(batch, dev))  # fmt: skip
+    x = TermInputs(
+        objective.template.patches_from_params(params),
+        st,
+        batch["points"][..., :3],
+        batch["points"][..., 3:],
+        mask,
+        tn,
+        objective.template.points_from_params(params) if sym is not None else None,
+        sym,
+        objective.symmetry_valid(mask),
+        objective.plane_x,
+        objective.pairs,
+        objective.groups(batch, dev),
+    )
     tick("loss inputs (masks, groups, template normals)")
     x.ev
     tick("patch evaluation (shared)")
@@ -96,8 +107,17 @@ def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, 
     tick("optimizer step (Adam)")
 
 
-def profile(dataset: str, category: str, template: str, steps: int, batch: int, views: int, noise: float,
-            image_size: int, width: int) -> dict[str, float]:  # fmt: skip
+def profile(
+    dataset: str,
+    category: str,
+    template: str,
+    steps: int,
+    batch: int,
+    views: int,
+    noise: float,
+    image_size: int,
+    width: int,
+) -> dict[str, float]:
     tpl = load_template(template)
     weights = template_weights(tpl.regularizers)
     torch.manual_seed(0)
@@ -150,10 +170,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ds, cat = a.dataset, a.category
         if ds is None:
-            ds, cat = str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)), "knife"
+            ds, cat = (
+                str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)),
+                "knife",
+            )
         med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise, a.image_size, a.encoder_width)
-    head = (f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise} "
-            f"image={a.image_size} encoder_width={a.encoder_width} steps={a.steps}")  # fmt: skip
+    head = (
+        f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise} "
+        f"image={a.image_size} encoder_width={a.encoder_width} steps={a.steps}"
+    )
     print(head)
     real = med["REAL STEP (train_step)"]
     print("| part | median CPU s/step | share of the real step |\n|---|---:|---:|")

@@ -28,8 +28,10 @@ def main(repeats: int = 3) -> None:
             assert not closed_manifold_problems(tpl) and not self_intersections(tpl)
             build.append(t1 - t0)
             check.append(time.perf_counter() - t1)
-        print(f"{cat:9s} {len(m.cuboids):3d} cuboids -> {tpl.num_patches:4d} patches  "
-              f"build median {statistics.median(build) * 1e3:7.1f} ms  checks median {statistics.median(check) * 1e3:7.1f} ms")
+        print(
+            f"{cat:9s} {len(m.cuboids):3d} cuboids -> {tpl.num_patches:4d} patches  "
+            f"build median {statistics.median(build) * 1e3:7.1f} ms  checks median {statistics.median(check) * 1e3:7.1f} ms"
+        )
 
 
 if __name__ == "__main__":

@@ -37,17 +37,30 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ds = write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=a.image_size)
         w = LossWeights() if a.collision else LossWeights(collision=0.0)
-        s = FitSettings(dataset=str(ds), category="knife", template=a.template, out=str(Path(tmp) / "run"),
-                        steps=a.steps, batch_size=a.batch_size, workers=0, image_size=a.image_size, log_every=1, max_views=a.max_views, n_points=a.points,
-                        weights=w)  # fmt: skip
+        s = FitSettings(
+            dataset=str(ds),
+            category="knife",
+            template=a.template,
+            out=str(Path(tmp) / "run"),
+            steps=a.steps,
+            batch_size=a.batch_size,
+            workers=0,
+            image_size=a.image_size,
+            log_every=1,
+            max_views=a.max_views,
+            n_points=a.points,
+            weights=w,
+        )
         fit(s, progress=False)
         rows = list(csv.DictReader(open(Path(tmp) / "run" / "log.csv")))
     secs = [float(r["seconds"]) for r in rows]
     per_step = [b - a for a, b in zip(secs[1:], secs[2:])]  # skip the first (warm-up) step
     med = statistics.median(per_step)
-    print(f"template={a.template} batch={a.batch_size} image={a.image_size} views<={a.max_views} "
-          f"points={a.points} threads={a.threads} collision={a.collision}: "
-          f"median {med:.3f} s/step ({1 / med:.2f} steps/s) over {len(per_step)} steps")  # fmt: skip
+    print(
+        f"template={a.template} batch={a.batch_size} image={a.image_size} views<={a.max_views} "
+        f"points={a.points} threads={a.threads} collision={a.collision}: "
+        f"median {med:.3f} s/step ({1 / med:.2f} steps/s) over {len(per_step)} steps"
+    )
 
 
 if __name__ == "__main__":

@@ -62,8 +62,12 @@ def step_times(a, data: DataSettings, batch: int, dev: torch.device) -> dict:
         if step >= 3:  # warm-up: cuDNN autotuning, allocator growth
             times.append(time.perf_counter() - t0)
     med = statistics.median(times)
-    out = {"batch": batch, "median_s_per_step": round(med, 4), "steps_per_s": round(1 / med, 2),
-           "samples_per_s_needed": round(batch / med, 1)}
+    out = {
+        "batch": batch,
+        "median_s_per_step": round(med, 4),
+        "steps_per_s": round(1 / med, 2),
+        "samples_per_s_needed": round(batch / med, 1),
+    }
     if dev.type == "cuda":
         out["peak_gpu_mem_mib"] = round(torch.cuda.max_memory_allocated(dev) / 2**20)
     return out
@@ -87,10 +91,16 @@ def main() -> None:
         return
     dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     data = DataSettings(max_views=a.max_views, n_points=a.points, image_size=128)
-    res = {"device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu", "torch": torch.__version__,
-           "template": a.template, "max_views": a.max_views, "points": a.points, "workers": a.workers,
-           "steps": [step_times(a, data, b, dev) for b in a.batch_sizes],
-           "loader_samples_per_s": {str(b): round(loader_rate(a, data, b), 1) for b in a.batch_sizes}}
+    res = {
+        "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu",
+        "torch": torch.__version__,
+        "template": a.template,
+        "max_views": a.max_views,
+        "points": a.points,
+        "workers": a.workers,
+        "steps": [step_times(a, data, b, dev) for b in a.batch_sizes],
+        "loader_samples_per_s": {str(b): round(loader_rate(a, data, b), 1) for b in a.batch_sizes},
+    }
     print(json.dumps(res, indent=1), flush=True)
 
 

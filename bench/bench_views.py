@@ -63,7 +63,9 @@ def candidate_pass_share(work: Path) -> dict[str, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)")
+    p.add_argument(
+        "--dataset", type=Path, default="data/dataset", help="dataset folder (default: the one `make dataset` builds)"
+    )
     p.add_argument("--work-dir", type=Path, default=None)
     p.add_argument("--floor", type=float, default=0.35)
     p.add_argument("--json", type=Path, default=None)
@@ -74,12 +76,19 @@ def main() -> None:
     print(f"{'category':10s} {'views':>6s} {'min':>6s} {'p5':>6s} {'median':>7s} {'<floor':>7s} {'kept':>6s}")
     for c, v in sorted(ext.items()):
         x = np.asarray(v)
-        rows[c] = {"views": len(x), "min": float(x.min()), "p5": float(np.percentile(x, 5)),
-                   "median": float(np.median(x)), "under_floor": float((x < a.floor).mean()),
-                   **({"candidates_kept": kept[c]} if c in kept else {})}
+        rows[c] = {
+            "views": len(x),
+            "min": float(x.min()),
+            "p5": float(np.percentile(x, 5)),
+            "median": float(np.median(x)),
+            "under_floor": float((x < a.floor).mean()),
+            **({"candidates_kept": kept[c]} if c in kept else {}),
+        }
         r = rows[c]
-        print(f"{c:10s} {r['views']:6d} {r['min']:6.3f} {r['p5']:6.3f} {r['median']:7.3f} {r['under_floor']:7.1%} "
-              f"{r.get('candidates_kept', float('nan')):6.1%}")
+        print(
+            f"{c:10s} {r['views']:6d} {r['min']:6.3f} {r['p5']:6.3f} {r['median']:7.3f} {r['under_floor']:7.1%} "
+            f"{r.get('candidates_kept', float('nan')):6.1%}"
+        )
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
 

@@ -30,8 +30,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 # ShapeNet Core v2 model counts of the paper's 8 categories (gun = rifle synset): 12,721 in all.
-SHAPENET_COUNTS = {"airplane": 4045, "bathtub": 856, "bottle": 498, "car": 3514, "guitar": 797,
-                   "gun": 2373, "knife": 424, "mug": 214}
+SHAPENET_COUNTS = {
+    "airplane": 4045,
+    "bathtub": 856,
+    "bottle": 498,
+    "car": 3514,
+    "guitar": 797,
+    "gun": 2373,
+    "knife": 424,
+    "mug": 214,
+}
 
 
 def count_tasks(counts: dict[str, int], batch_size: int) -> collections.Counter:
@@ -41,8 +49,13 @@ def count_tasks(counts: dict[str, int], batch_size: int) -> collections.Counter:
     from workflows.steps import n_batches
     from workflows.tasks import AugmentBatch, BuildDataset, CategoryShards, SourceList
 
-    root = BuildDataset(categories=",".join(counts), models_per_category=0, batch_size=batch_size,
-                        work_dir="/nonexistent/work", dataset_dir="/nonexistent/ds")
+    root = BuildDataset(
+        categories=",".join(counts),
+        models_per_category=0,
+        batch_size=batch_size,
+        work_dir="/nonexistent/work",
+        dataset_dir="/nonexistent/ds",
+    )
     seen: dict[str, luigi.Task] = {}
     stack = [root]
     while stack:
@@ -51,8 +64,10 @@ def count_tasks(counts: dict[str, int], batch_size: int) -> collections.Counter:
             continue
         seen[task.task_id] = task
         if isinstance(task, CategoryShards):  # its batches, for these counts instead of the source's
-            stack.extend([task.clone(SourceList)] + [task.clone(AugmentBatch, batch=b)
-                                                     for b in range(n_batches(counts[task.category], batch_size))])
+            stack.extend(
+                [task.clone(SourceList)]
+                + [task.clone(AugmentBatch, batch=b) for b in range(n_batches(counts[task.category], batch_size))]
+            )
         else:
             stack.extend(luigi.task.flatten(task.requires()))
     return collections.Counter(t.task_family for t in seen.values())
@@ -62,12 +77,35 @@ def throughput(workers: int, args) -> float:
     """Models per minute of one from-scratch build with ``workers`` Luigi workers."""
     tmp = Path(tempfile.mkdtemp(prefix="bench-workers-"))
     try:
-        cmd = [str(ROOT / ".venv" / "bin" / "luigi"), "--module", "workflows", "BuildDataset", "--local-scheduler",
-               "--workers", str(workers), "--categories", args.categories,
-               "--models-per-category", str(args.models), "--batch-size", str(args.batch_size),
-               "--views", str(args.views), "--variants", "1", "--image-size", str(args.image_size),
-               "--out-size", "64", "--work-dir", str(tmp / "work"), "--dataset-dir", str(tmp / "ds"),
-               "--log-level", "WARNING"]
+        cmd = [
+            str(ROOT / ".venv" / "bin" / "luigi"),
+            "--module",
+            "workflows",
+            "BuildDataset",
+            "--local-scheduler",
+            "--workers",
+            str(workers),
+            "--categories",
+            args.categories,
+            "--models-per-category",
+            str(args.models),
+            "--batch-size",
+            str(args.batch_size),
+            "--views",
+            str(args.views),
+            "--variants",
+            "1",
+            "--image-size",
+            str(args.image_size),
+            "--out-size",
+            "64",
+            "--work-dir",
+            str(tmp / "work"),
+            "--dataset-dir",
+            str(tmp / "ds"),
+            "--log-level",
+            "WARNING",
+        ]
         t0 = time.perf_counter()
         subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True)
         seconds = time.perf_counter() - t0
@@ -91,20 +129,25 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=1)
     args = p.parse_args()
     if args.count_tasks:
-        counts = (SHAPENET_COUNTS if args.models_per_category == 0
-                  else {c: args.models_per_category for c in SHAPENET_COUNTS})
+        counts = (
+            SHAPENET_COUNTS if args.models_per_category == 0 else {c: args.models_per_category for c in SHAPENET_COUNTS}
+        )
         print(f"{sum(counts.values())} models in {len(counts)} categories")
         for bs in (int(b) for b in args.batch_sizes.split(",")):
             by_family = count_tasks(counts, bs)
-            print(f"batch_size {bs}: {sum(by_family.values())} tasks "
-                  + ", ".join(f"{k} {v}" for k, v in sorted(by_family.items())))
+            print(
+                f"batch_size {bs}: {sum(by_family.values())} tasks "
+                + ", ".join(f"{k} {v}" for k, v in sorted(by_family.items()))
+            )
         print(f"(one task per model and stage would be {3 * sum(counts.values()) + 3 * len(counts) + 1})")
     if args.throughput:
         print(f"load average before: {os.getloadavg()}")
         for w in (1, 2):
             rates = [throughput(w, args) for _ in range(args.repeats)]
-            print(f"workers {w}: median {statistics.median(rates):.1f} models/min "
-                  f"({', '.join(f'{r:.1f}' for r in rates)})")
+            print(
+                f"workers {w}: median {statistics.median(rates):.1f} models/min "
+                f"({', '.join(f'{r:.1f}' for r in rates)})"
+            )
         print(f"load average after: {os.getloadavg()}")
 
 

@@ -67,8 +67,13 @@ def measure(stage: str, work: Path, every: int) -> dict:
             from render.settings import RenderSettings
 
             c = cpu_seconds()
-            render_batch("mixed", [(folder.name, folder / "lines.ply") for folder, _ in docs], out,
-                         RenderSettings(views=8, backend="embree"), 0)
+            render_batch(
+                "mixed",
+                [(folder.name, folder / "lines.ply") for folder, _ in docs],
+                out,
+                RenderSettings(views=8, backend="embree"),
+                0,
+            )
         else:
             from augment.batch import augment_model
             from augment.settings import AugmentSettings
@@ -76,8 +81,14 @@ def measure(stage: str, work: Path, every: int) -> dict:
             c = cpu_seconds()
             for folder, rec in docs:
                 (out / folder.name).mkdir()
-                augment_model(rec["category"], rec["model_id"], Path(rec["render_dir"]), out / folder.name,
-                              AugmentSettings(variants=4), 0)
+                augment_model(
+                    rec["category"],
+                    rec["model_id"],
+                    Path(rec["render_dir"]),
+                    out / folder.name,
+                    AugmentSettings(variants=4),
+                    0,
+                )
         return {"models": len(docs), "cpu_per_model": (cpu_seconds() - c) / max(len(docs), 1)}
 
 
@@ -98,14 +109,34 @@ def main() -> int:
     for _ in range(args.rounds):
         for root in args.roots:
             env = dict(os.environ, PYTHONPATH=str(root.resolve()), OMP_NUM_THREADS="1")
-            out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure-here", "--stage", args.stage,
-                                  "--work", str(args.work.resolve()), "--every", str(args.every), "--roots", ".", "."],
-                                 cwd=root, env=env, capture_output=True, text=True, check=True)
+            out = subprocess.run(
+                [
+                    sys.executable,
+                    str(Path(__file__).resolve()),
+                    "--measure-here",
+                    "--stage",
+                    args.stage,
+                    "--work",
+                    str(args.work.resolve()),
+                    "--every",
+                    str(args.every),
+                    "--roots",
+                    ".",
+                    ".",
+                ],
+                cwd=root,
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+            )
             res = json.loads(out.stdout.strip().splitlines()[-1])
             figures[str(root)].append(res["cpu_per_model"])
             print(f"{root}: {res['cpu_per_model']:.4f} core-s per {unit} ({res['models']} {unit}s)", flush=True)
     a, b = (statistics.median(figures[str(r)]) for r in args.roots)
-    print(f"{args.stage}: median {a:.4f} -> {b:.4f} core-s per {unit} (B/A {b / a:.2f}); load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"{args.stage}: median {a:.4f} -> {b:.4f} core-s per {unit} (B/A {b / a:.2f}); load average {os.getloadavg()[0]:.1f}"
+    )
     return 0
 
 

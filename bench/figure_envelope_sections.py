@@ -26,21 +26,30 @@ import trimesh  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_pipeline import write_corpus  # noqa: E402  (this folder is on the path when run as a script)
+
 from pipeline.prepare.watertight import make_watertight, pull_to_source  # noqa: E402
 from pipeline.sources.mesh_io import load_mesh  # noqa: E402
 
 # category, model index in the corpus, plane axis, plane offset (source frame), zoom box half-size
-CUTS = [("knife", 0, 2, -0.4, 0.08), ("mug", 0, 1, 0.5, 0.55), ("airplane", 0, 0, 0.6, 0.15),
-        ("guitar", 0, 1, 0.0, 0.35)]
-STYLES = [("source", "black", 1.6), ("Manifold 5000 (before)", "tab:red", 1.0),
-          ("Manifold 2500 pulled 0.9 (now)", "tab:blue", 1.0)]
+CUTS = [
+    ("knife", 0, 2, -0.4, 0.08),
+    ("mug", 0, 1, 0.5, 0.55),
+    ("airplane", 0, 0, 0.6, 0.15),
+    ("guitar", 0, 1, 0.0, 0.35),
+]
+STYLES = [
+    ("source", "black", 1.6),
+    ("Manifold 5000 (before)", "tab:red", 1.0),
+    ("Manifold 2500 pulled 0.9 (now)", "tab:blue", 1.0),
+]
 
 
 def section_segments(vertices: np.ndarray, faces: np.ndarray, axis: int, offset: float) -> np.ndarray:
     """(n, 2, 2) segments of the mesh cut by the plane x[axis] = offset, in the other two axes."""
     normal = np.eye(3)[axis]
-    segments = trimesh.intersections.mesh_plane(trimesh.Trimesh(vertices, faces, process=False), normal,
-                                                normal * offset)
+    segments = trimesh.intersections.mesh_plane(
+        trimesh.Trimesh(vertices, faces, process=False), normal, normal * offset
+    )
     keep = [i for i in range(3) if i != axis]
     return np.asarray(segments)[:, :, keep]
 

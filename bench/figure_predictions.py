@@ -19,10 +19,10 @@ import numpy as np
 import torch
 import webdataset as wds
 
-from pipeline.sources.mesh_io import read_ply
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
+from pipeline.sources.mesh_io import read_ply
 from train.data import DataSettings, read_png, sketch_table, to_network
 from train.evaluate import blind_output
 from train.fit import load_run

@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 import torch
-
 from bench_fit_ceiling import fit_to_targets  # this folder is on the path when run as a script
+
 from train.data import DataSettings, make_loader
 from train.fit import load_run, save_checkpoint, train_step, validation_chamfer
 from train.model import TrainingNet
@@ -45,7 +45,7 @@ def per_shape_fits(objective: Objective, batches: list[dict], steps: int) -> dic
 @torch.no_grad()
 def hidden_features(model, batch: dict, view: int) -> torch.Tensor:
     """The last hidden layer's activation for one view of each item (B, F)."""
-    z = model.latent(batch["images"][:, view:view + 1], batch["view_mask"][:, view:view + 1])
+    z = model.latent(batch["images"][:, view : view + 1], batch["view_mask"][:, view : view + 1])
     for layer in model.hidden[1:]:
         z = layer(z)
     return z
@@ -68,8 +68,17 @@ def main() -> None:
     model, tpl, s = run.model, run.template, run.settings
     objective = Objective(tpl, s.n_points, match_normals=s.match_normals)
     cpu = torch.device("cpu")
-    val = list(make_loader(a.dataset, a.category, "val", DataSettings(eval_views=1, n_points=s.n_points,
-                                                                      image_size=s.image_size), 0, 64, train=False))
+    val = list(
+        make_loader(
+            a.dataset,
+            a.category,
+            "val",
+            DataSettings(eval_views=1, n_points=s.n_points, image_size=s.image_size),
+            0,
+            64,
+            train=False,
+        )
+    )
     trained = (model.out.weight.detach().clone(), model.out.bias.detach().clone())
     best = (validation_chamfer(model, val, objective, cpu), trained)
     print(f"trained head: val L_Ch {best[0]:.4f}", flush=True)
@@ -82,9 +91,22 @@ def main() -> None:
 
     if a.ridge:
         t0 = time.process_time()
-        train = list(make_loader(a.dataset, a.category, "train", DataSettings(eval_views=4, n_points=s.n_points,
-                                                                              image_size=s.image_size), 0, 64, train=False))
-        fits = torch.load(a.fits, weights_only=True) if a.fits and os.path.exists(a.fits) else per_shape_fits(objective, train, a.fit_steps)
+        train = list(
+            make_loader(
+                a.dataset,
+                a.category,
+                "train",
+                DataSettings(eval_views=4, n_points=s.n_points, image_size=s.image_size),
+                0,
+                64,
+                train=False,
+            )
+        )
+        fits = (
+            torch.load(a.fits, weights_only=True)
+            if a.fits and os.path.exists(a.fits)
+            else per_shape_fits(objective, train, a.fit_steps)
+        )
         if a.fits:
             torch.save(fits, a.fits)
         rows, targets = [], []
@@ -119,8 +141,9 @@ def main() -> None:
         trainee = TrainingNet(model)
         for step in range(1, a.sgd_steps + 1):
             batch = next(stream)
-            train_step(trainee, opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)),
-                       s.weights, cpu)
+            train_step(
+                trainee, opt, objective, batch, objective.sample_st(torch.Generator().manual_seed(step)), s.weights, cpu
+            )
             if step % 100 == 0:
                 v = validation_chamfer(model, val, objective, cpu)  # the model stays in eval mode
                 print(f"head-only step {step} (lr {a.lr:g}): val L_Ch {v:.4f}", flush=True)

@@ -72,8 +72,10 @@ def main() -> int:
         return head(encoder(batch["images"][:, 0]))
 
     # the fixed splits' codes once (they are targets, not data that changes)
-    fixed = {name: [(b["images"][:, 0], code(b["points"])) for b in batches]
-             for name, batches in (("train", train_once), ("val", val))}
+    fixed = {
+        name: [(b["images"][:, 0], code(b["points"])) for b in batches]
+        for name, batches in (("train", train_once), ("val", val))
+    }
 
     @torch.no_grad()
     def error(name: str) -> float:
@@ -85,9 +87,14 @@ def main() -> int:
     def mean_error(name: str) -> float:  # predicting the mean code (0)
         return float(torch.cat([c for _, c in fixed[name]]).pow(2).mean())
 
-    print(f"{a.category}: {len(d)} training shapes, {k} components; predicting the mean: "
-          f"train {mean_error('train'):.3f}, val {mean_error('val'):.3f}", flush=True)
-    stream = iter(make_loader(a.dataset, a.category, "train", DataSettings(max_views=1, n_points=a.points), 0, 8, 1, True))
+    print(
+        f"{a.category}: {len(d)} training shapes, {k} components; predicting the mean: "
+        f"train {mean_error('train'):.3f}, val {mean_error('val'):.3f}",
+        flush=True,
+    )
+    stream = iter(
+        make_loader(a.dataset, a.category, "train", DataSettings(max_views=1, n_points=a.points), 0, 8, 1, True)
+    )
     t0, recent = time.process_time(), []
     for step in range(1, a.steps + 1):
         batch = next(stream)
@@ -97,8 +104,11 @@ def main() -> int:
         opt.step()
         recent.append(float(loss.detach()))
         if step % 200 == 0:
-            print(f"step {step}: batches {sum(recent[-200:]) / 200:.3f}, train {error('train'):.3f}, "
-                  f"val {error('val'):.3f} ({time.process_time() - t0:.0f} CPU s)", flush=True)
+            print(
+                f"step {step}: batches {sum(recent[-200:]) / 200:.3f}, train {error('train'):.3f}, "
+                f"val {error('val'):.3f} ({time.process_time() - t0:.0f} CPU s)",
+                flush=True,
+            )
     return 0
 
 

@@ -32,7 +32,9 @@ def codes(model, dataset, category, split, parts, image_size):
     for b in make_loader(dataset, category, split, data, 0, 8, train=False):
         pts = b["points"][..., :3].numpy()
         ext = pts.max(1) - pts.min(1)
-        has = np.array([[float(p in (m.get(PRESENT_PARTS) or [])) for p in parts] for m in b["meta"]]).reshape(len(ext), -1)
+        has = np.array([[float(p in (m.get(PRESENT_PARTS) or [])) for p in parts] for m in b["meta"]]).reshape(
+            len(ext), -1
+        )
         for v in range(b["images"].shape[1]):  # every view on its own: up to 4 samples per model
             on = b["view_mask"][:, v].numpy()
             if not on.any():
@@ -79,12 +81,18 @@ def main() -> None:
     xtr, ytr, vtr = codes(model, a.dataset, s.category, "train", parts, s.image_size)
     xte, yte, vte = codes(model, a.dataset, s.category, a.eval_split, parts, s.image_size)
     names = ["extent_x", "extent_y", "extent_z"] + [f"has_{p}" for p in parts]
-    out = {"weights": "pixels" if a.pixels else "init" if a.init else f"step {run.step}", "train views": len(xtr), f"{a.eval_split} views": len(xte)}
+    out = {
+        "weights": "pixels" if a.pixels else "init" if a.init else f"step {run.step}",
+        "train views": len(xtr),
+        f"{a.eval_split} views": len(xte),
+    }
     for alpha in (1e2, 1e3, 1e4):
         r2 = r2_probe(xtr, ytr, xte, yte, alpha)
         out[f"r2 (ridge {alpha:g})"] = {n: round(float(v), 3) for n, v in zip(names, r2)}
         # one probe per view index (a fixed camera rig gives each index one viewpoint), R² averaged
-        per = np.mean([r2_probe(xtr[vtr == v], ytr[vtr == v], xte[vte == v], yte[vte == v], alpha) for v in np.unique(vte)], 0)
+        per = np.mean(
+            [r2_probe(xtr[vtr == v], ytr[vtr == v], xte[vte == v], yte[vte == v], alpha) for v in np.unique(vte)], 0
+        )
         out[f"r2 per view index (ridge {alpha:g})"] = {n: round(float(v), 3) for n, v in zip(names, per)}
     print(json.dumps(out))
 

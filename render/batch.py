@@ -40,17 +40,24 @@ def worker_command(job_path: Path) -> list[str]:
     return [sys.executable, "-m", "render.worker", str(job_path)]
 
 
-def render_batch(category: str, items: list[tuple[str, Path]], stage_dir: Path,
-                 settings: RenderSettings, seed: int, progress: Progress = None,
-                 on_crash: str = "record") -> list[dict]:
+def render_batch(
+    category: str,
+    items: list[tuple[str, Path]],
+    stage_dir: Path,
+    settings: RenderSettings,
+    seed: int,
+    progress: Progress = None,
+    on_crash: str = "record",
+) -> list[dict]:
     """Render every (model_id, mesh path) of ``items``; returns their records in order."""
     if on_crash not in ("record", "raise"):
         raise ValueError(f"on_crash must be 'record' or 'raise', got {on_crash!r}")
     # absolute paths: the worker runs with the project root as its working directory
     stage_dir = Path(stage_dir).resolve()
     total = len(items)
-    pending = [(mid, Path(mesh).resolve()) for mid, mesh in items
-               if read_record(model_dir(stage_dir, category, mid)) is None]
+    pending = [
+        (mid, Path(mesh).resolve()) for mid, mesh in items if read_record(model_dir(stage_dir, category, mid)) is None
+    ]
     done0 = total - len(pending)
     if progress is not None:
         progress(done0, total, f"render {category}: {done0} already done")
@@ -59,9 +66,17 @@ def render_batch(category: str, items: list[tuple[str, Path]], stage_dir: Path,
     return [read_record(model_dir(stage_dir, category, mid)) for mid, _ in items]
 
 
-def _run_worker(category: str, pending: list[tuple[str, Path]], stage_dir: Path,
-                settings: RenderSettings, seed: int, progress: Progress, on_crash: str,
-                done0: int, total: int) -> None:
+def _run_worker(
+    category: str,
+    pending: list[tuple[str, Path]],
+    stage_dir: Path,
+    settings: RenderSettings,
+    seed: int,
+    progress: Progress,
+    on_crash: str,
+    done0: int,
+    total: int,
+) -> None:
     (stage_dir / category).mkdir(parents=True, exist_ok=True)
     remove_stale_jobs(stage_dir / category)
     work = Path(tempfile.mkdtemp(prefix=f"{JOB_PREFIX}{socket.gethostname()}-{os.getpid()}-", dir=stage_dir / category))
@@ -88,8 +103,13 @@ def _run_worker(category: str, pending: list[tuple[str, Path]], stage_dir: Path,
         for mid, mesh in pending:
             folder = model_dir(stage_dir, category, mid)
             if read_record(folder) is None:
-                where = ("while rendering this model" if mid == culprit
-                         else f"while rendering model {culprit}" if culprit else "before any model")
+                where = (
+                    "while rendering this model"
+                    if mid == culprit
+                    else f"while rendering model {culprit}"
+                    if culprit
+                    else "before any model"
+                )
                 write_failed(folder, ModelError(mesh, f"{where}: {reason}"), category=category, model_id=mid)
         if progress is not None:
             progress(total, total, f"render {category}: worker failed: {cause}")
@@ -102,7 +122,7 @@ def remove_stale_jobs(folder: Path) -> list[Path]:
     longer exists (other hosts' folders are left alone: their owners may still be rendering)."""
     removed = []
     for job in Path(folder).glob(f"{JOB_PREFIX}*"):
-        host, _, rest = job.name[len(JOB_PREFIX):].rpartition("-")[0].rpartition("-")
+        host, _, rest = job.name[len(JOB_PREFIX) :].rpartition("-")[0].rpartition("-")
         pid = int(rest) if rest.isdigit() else 0
         if host == socket.gethostname() and pid > 0 and not _alive(pid):
             shutil.rmtree(job, ignore_errors=True)
@@ -120,8 +140,16 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Progress,
-               done0: int, total: int, current: list[str], fatal: list[dict]) -> str | None:
+def _supervise(
+    job_path: Path,
+    stderr_path: Path,
+    timeout: float,
+    progress: Progress,
+    done0: int,
+    total: int,
+    current: list[str],
+    fatal: list[dict],
+) -> str | None:
     """Run the worker; None if it exited cleanly, else a sentence saying how it died. A fatal
     error the worker reported is appended to ``fatal``."""
     env = dict(os.environ)
@@ -130,9 +158,16 @@ def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Prog
     env[PARENT_ENV] = str(os.getpid())  # the worker ends itself if this process dies
     lines: queue.Queue[str | None] = queue.Queue()
     with open(stderr_path, "wb") as err:
-        proc = subprocess.Popen(worker_command(job_path), stdout=subprocess.PIPE, stderr=err,
-                                stdin=subprocess.DEVNULL, cwd=str(PROJECT_ROOT), env=env,
-                                text=True, errors="replace")
+        proc = subprocess.Popen(
+            worker_command(job_path),
+            stdout=subprocess.PIPE,
+            stderr=err,
+            stdin=subprocess.DEVNULL,
+            cwd=str(PROJECT_ROOT),
+            env=env,
+            text=True,
+            errors="replace",
+        )
         reader = threading.Thread(target=_pump, args=(proc.stdout, lines), daemon=True)
         reader.start()
         deadline = time.monotonic() + timeout
@@ -150,7 +185,7 @@ def _supervise(job_path: Path, stderr_path: Path, timeout: float, progress: Prog
             if line is None:  # stdout closed: the worker is exiting
                 break
             if line.startswith(PROGRESS_PREFIX):
-                msg = json.loads(line[len(PROGRESS_PREFIX):])
+                msg = json.loads(line[len(PROGRESS_PREFIX) :])
                 if "fatal" in msg:
                     fatal.append(msg["fatal"])
                     continue

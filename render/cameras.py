@@ -23,9 +23,9 @@ class View:
     elevation_deg: float
     distance: float
     orthographic: bool
-    K: np.ndarray                 # 3x3
-    world_to_camera: np.ndarray   # 4x4, OpenCV axes
-    projection: np.ndarray        # 3x4, homogeneous world -> homogeneous pixel
+    K: np.ndarray  # 3x3
+    world_to_camera: np.ndarray  # 4x4, OpenCV axes
+    projection: np.ndarray  # 3x4, homogeneous world -> homogeneous pixel
 
     @property
     def eye(self) -> np.ndarray:
@@ -84,8 +84,9 @@ def make_view(settings: RenderSettings, azimuth_deg: float, elevation_deg: float
         Rt = np.vstack([w2c[:2], [0.0, 0.0, 0.0, 1.0]])
     else:
         Rt = w2c[:3]
-    return View(float(azimuth_deg), float(elevation_deg), float(settings.distance),
-                settings.orthographic, K, w2c, K @ Rt)
+    return View(
+        float(azimuth_deg), float(elevation_deg), float(settings.distance), settings.orthographic, K, w2c, K @ Rt
+    )
 
 
 def rig(settings: RenderSettings, seed: int, category: str, model_id: str, vertices: np.ndarray) -> list[View]:

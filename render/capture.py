@@ -13,8 +13,16 @@ from __future__ import annotations
 from typing import Any
 
 # Name order decides a stroke vertex's type when its edge has several natures at once.
-_TYPE_ORDER = ("silhouette", "border", "crease", "ridge", "valley", "suggestive_contour",
-               "material_boundary", "edge_mark")
+_TYPE_ORDER = (
+    "silhouette",
+    "border",
+    "crease",
+    "ridge",
+    "valley",
+    "suggestive_contour",
+    "material_boundary",
+    "edge_mark",
+)
 
 
 class StrokeRecorder:
@@ -48,8 +56,10 @@ class StrokeRecorder:
         from render.join import join_fragments
 
         frags = [(np.asarray(p, float), t) for p, t in self._fragments]
-        return [_stroke_entry([[round(float(x), 4), round(float(y), 4)] for x, y in p], t)
-                for p, t in join_fragments(frags, self.join_gap_px)]
+        return [
+            _stroke_entry([[round(float(x), 4), round(float(y), 4)] for x, y in p], t)
+            for p, t in join_fragments(frags, self.join_gap_px)
+        ]
 
     def _shaders(self, scene: Any, layer: Any, lineset: Any) -> list:
         from freestyle.types import StrokeShader
@@ -65,10 +75,16 @@ class StrokeRecorder:
     def _record(self, stroke: Any) -> None:
         from freestyle.types import Nature
 
-        natures = [(Nature.SILHOUETTE, "silhouette"), (Nature.BORDER, "border"),
-                   (Nature.CREASE, "crease"), (Nature.RIDGE, "ridge"), (Nature.VALLEY, "valley"),
-                   (Nature.SUGGESTIVE_CONTOUR, "suggestive_contour"),
-                   (Nature.MATERIAL_BOUNDARY, "material_boundary"), (Nature.EDGE_MARK, "edge_mark")]
+        natures = [
+            (Nature.SILHOUETTE, "silhouette"),
+            (Nature.BORDER, "border"),
+            (Nature.CREASE, "crease"),
+            (Nature.RIDGE, "ridge"),
+            (Nature.VALLEY, "valley"),
+            (Nature.SUGGESTIVE_CONTOUR, "suggestive_contour"),
+            (Nature.MATERIAL_BOUNDARY, "material_boundary"),
+            (Nature.EDGE_MARK, "edge_mark"),
+        ]
         H = self.image_height
         points: list[list[float]] = []
         seg_types: list[str] = []
@@ -78,8 +94,7 @@ class StrokeRecorder:
             fedge = sv.fedge
             # one type per vertex (kept aligned with the points so joined fragments stay typed)
             nat = fedge.nature if fedge is not None else None
-            seg_types.append("" if nat is None else
-                             next((name for bit, name in natures if nat & bit), "other"))
+            seg_types.append("" if nat is None else next((name for bit, name in natures if nat & bit), "other"))
         if len(points) < 2:
             return
         self._fragments.append((points, seg_types))

@@ -24,8 +24,8 @@ import math
 
 import numpy as np
 
-from render.capture import typed_stroke
 from render.cameras import View
+from render.capture import typed_stroke
 from render.settings import RenderSettings
 
 # Edge natures, in Freestyle's precedence when an edge has several (capture._TYPE_ORDER).
@@ -57,8 +57,7 @@ class MeshLines:
         self.crease = cos_pair < crease_cos
         self.border_edges = border
         self._scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene=self._scene, vertices=self.vertices.astype(np.float32),
-                     indices=self.faces.astype(np.int32))
+        TriangleMesh(scene=self._scene, vertices=self.vertices.astype(np.float32), indices=self.faces.astype(np.int32))
 
     def feature_edges(self, view: View) -> tuple[np.ndarray, np.ndarray]:
         """(m,2) vertex ids of this view's silhouette, border and crease edges and their natures."""
@@ -70,8 +69,7 @@ class MeshLines:
         sil = front[self.face_pairs[:, 0]] != front[self.face_pairs[:, 1]]
         pair = sil | self.crease
         edges = np.concatenate([self.pair_edges[pair], self.border_edges])
-        nature = np.concatenate([np.where(sil[pair], SILHOUETTE, CREASE),
-                                 np.full(len(self.border_edges), BORDER)])
+        nature = np.concatenate([np.where(sil[pair], SILHOUETTE, CREASE), np.full(len(self.border_edges), BORDER)])
         return edges, nature
 
     def visible(self, view: View, points: np.ndarray) -> np.ndarray:
@@ -87,8 +85,12 @@ class MeshLines:
             delta = points - view.eye
             dist = np.linalg.norm(delta, axis=1)
             dirs = delta / dist[:, None]
-        hit = self._scene.run(np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32),
-                              dists=(dist * (1.0 - _VISIBLE_SLACK)).astype(np.float32), query="OCCLUDED")
+        hit = self._scene.run(
+            np.ascontiguousarray(origins, np.float32),
+            np.ascontiguousarray(dirs, np.float32),
+            dists=(dist * (1.0 - _VISIBLE_SLACK)).astype(np.float32),
+            query="OCCLUDED",
+        )
         return np.asarray(hit) == -1
 
     def strokes(self, view: View) -> list[dict]:
@@ -113,8 +115,8 @@ class MeshLines:
         inner = np.flatnonzero(~at_vertex)
         hits = self.visible(view, np.concatenate([self.vertices[uniq], pts[inner]]))
         seen = np.empty(len(pts), bool)
-        seen[at_vertex] = hits[:len(uniq)][inv]
-        seen[inner] = hits[len(uniq):]
+        seen[at_vertex] = hits[: len(uniq)][inv]
+        seen[inner] = hits[len(uniq) :]
         uv = project(view.projection, pts)
         chains = _chain(edges, nature, start, seen, uv, s.join_gap_px)
         if s.min_stroke_px > 0:
@@ -126,16 +128,20 @@ class MeshLines:
         flat = np.round(np.concatenate([p for p, _ in chains]), 4).tolist()
         kinds = np.concatenate([k for _, k in chains])
         ends = np.cumsum(sizes)
-        counts = np.diff(np.vstack([np.zeros(3, np.int64),
-                                    np.cumsum(kinds[:, None] == np.arange(3), axis=0)[ends - 1]]), axis=0).tolist()
-        return [typed_stroke(flat[e - n:e], {NATURE_NAMES[k]: c for k, c in enumerate(cnt) if c})
-                for e, n, cnt in zip(ends.tolist(), sizes.tolist(), counts)]
+        counts = np.diff(
+            np.vstack([np.zeros(3, np.int64), np.cumsum(kinds[:, None] == np.arange(3), axis=0)[ends - 1]]), axis=0
+        ).tolist()
+        return [
+            typed_stroke(flat[e - n : e], {NATURE_NAMES[k]: c for k, c in enumerate(cnt) if c})
+            for e, n, cnt in zip(ends.tolist(), sizes.tolist(), counts)
+        ]
 
     def draw(self, view: View) -> tuple[np.ndarray, list[dict]]:
         """The view's drawing (uint8 gray, black lines on white) and its strokes."""
         strokes = self.strokes(view)
-        return draw_strokes([np.asarray(st["points"]) for st in strokes], self.settings.image_size,
-                            self.settings.line_thickness), strokes
+        return draw_strokes(
+            [np.asarray(st["points"]) for st in strokes], self.settings.image_size, self.settings.line_thickness
+        ), strokes
 
 
 def _edge_topology(faces: np.ndarray, face_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,8 +175,15 @@ def _runs(edges: np.ndarray, start: np.ndarray, seen: np.ndarray) -> tuple[np.nd
     return run_start[long], run_end[long]
 
 
-def _chain(edges: np.ndarray, nature: np.ndarray, start: np.ndarray, seen: np.ndarray,
-           uv: np.ndarray, gap_px: float, max_turn_deg: float = 60.0) -> list[tuple[np.ndarray, np.ndarray]]:
+def _chain(
+    edges: np.ndarray,
+    nature: np.ndarray,
+    start: np.ndarray,
+    seen: np.ndarray,
+    uv: np.ndarray,
+    gap_px: float,
+    max_turn_deg: float = 60.0,
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Runs of visible samples chained end to end into polylines: (points, natures per point).
 
     Run ends meet where edges share a mesh vertex (same point) or, like Freestyle's captured
@@ -193,8 +206,10 @@ def _chain(edges: np.ndarray, nature: np.ndarray, start: np.ndarray, seen: np.nd
     out_dir /= np.maximum(np.linalg.norm(out_dir, axis=1), 1e-12)[:, None]
     # an end at its edge's first/last sample sits on that mesh vertex; others inside the edge
     e = edge_of_run
-    vert = np.stack([np.where(run_start == start[e], edges[e, 0], -1),
-                     np.where(run_end == start[e + 1] - 1, edges[e, 1], -1)], axis=1).ravel()
+    vert = np.stack(
+        [np.where(run_start == start[e], edges[e, 0], -1), np.where(run_end == start[e + 1] - 1, edges[e, 1], -1)],
+        axis=1,
+    ).ravel()
     link = np.full(2 * n, -1, np.int64)
     # ends sharing a vertex: pairs meet at once; three or more pair up straightest first
     on_v = np.flatnonzero(vert >= 0)
@@ -262,8 +277,9 @@ def _pairs_within_groups(members: np.ndarray, group: np.ndarray, largest: int) -
     return np.concatenate(out)
 
 
-def _assemble(chains: list[list[int]], run_start: np.ndarray, run_end: np.ndarray, uv: np.ndarray,
-              run_nature: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def _assemble(
+    chains: list[list[int]], run_start: np.ndarray, run_end: np.ndarray, uv: np.ndarray, run_nature: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Concatenate each chain's runs (entered at their start: forward, else backward), the point
     where two runs share a mesh vertex kept once."""
     entries = np.fromiter((e for seq in chains for e in seq), np.int64)
@@ -311,8 +327,8 @@ def draw_strokes(strokes: list[np.ndarray], size: int, thickness: float) -> np.n
     base = np.ceil(np.minimum(a, b) - r - 0.5).astype(np.int64)
     reach = int(np.floor(1.0 + 2.0 * r)) + 1
     ox, oy = np.meshgrid(np.arange(reach), np.arange(reach), indexing="xy")
-    pu = base[:, :1] + ox.ravel()[None]                        # (m, reach²) pixel columns
-    pv = base[:, 1:] + oy.ravel()[None]                        # and rows
+    pu = base[:, :1] + ox.ravel()[None]  # (m, reach²) pixel columns
+    pv = base[:, 1:] + oy.ravel()[None]  # and rows
     du, dv = (b - a)[:, :1], (b - a)[:, 1:]
     cu, cv = pu + 0.5 - a[:, :1], pv + 0.5 - a[:, 1:]
     t = np.clip((cu * du + cv * dv) / np.maximum(du * du + dv * dv, 1e-12), 0.0, 1.0)

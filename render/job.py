@@ -16,16 +16,26 @@ PARENT_ENV = "SKETCH_RENDER_PARENT"  # pid of the process that started the worke
 FATAL_EXIT = 3  # the worker's exit code after a ``{"fatal": ...}`` progress line
 
 
-def write_job(path: Path, category: str, items: list[tuple[str, Path]], stage_dir: Path,
-              settings: RenderSettings, seed: int, scratch_dir: Path) -> None:
-    write_json(path, {
-        "category": category,
-        "items": [{"model_id": mid, "mesh": str(mesh)} for mid, mesh in items],
-        "stage_dir": str(stage_dir),
-        "settings": dataclasses.asdict(settings),
-        "seed": int(seed),
-        "scratch_dir": str(scratch_dir),
-    })
+def write_job(
+    path: Path,
+    category: str,
+    items: list[tuple[str, Path]],
+    stage_dir: Path,
+    settings: RenderSettings,
+    seed: int,
+    scratch_dir: Path,
+) -> None:
+    write_json(
+        path,
+        {
+            "category": category,
+            "items": [{"model_id": mid, "mesh": str(mesh)} for mid, mesh in items],
+            "stage_dir": str(stage_dir),
+            "settings": dataclasses.asdict(settings),
+            "seed": int(seed),
+            "scratch_dir": str(scratch_dir),
+        },
+    )
 
 
 def read_job(path: Path) -> dict:
@@ -36,9 +46,13 @@ def read_job(path: Path) -> dict:
 
 def fatal_to_json(exc: BaseException) -> dict:
     """A storage or environment error of the worker, for the parent to raise again (fatal_from_json)."""
-    return {"type": type(exc).__name__, "errno": getattr(exc, "errno", None),
-            "strerror": getattr(exc, "strerror", None), "filename": getattr(exc, "filename", None),
-            "message": str(exc)}
+    return {
+        "type": type(exc).__name__,
+        "errno": getattr(exc, "errno", None),
+        "strerror": getattr(exc, "strerror", None),
+        "filename": getattr(exc, "filename", None),
+        "message": str(exc),
+    }
 
 
 def fatal_from_json(d: dict) -> BaseException:

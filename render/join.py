@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-Fragment = tuple[np.ndarray, list[str]]   # (n,2) points, natures under its vertices
+Fragment = tuple[np.ndarray, list[str]]  # (n,2) points, natures under its vertices
 
 
 def _direction(points: np.ndarray, at_end: bool, reach_px: float = 3.0) -> np.ndarray | None:
@@ -29,8 +29,7 @@ def _direction(points: np.ndarray, at_end: bool, reach_px: float = 3.0) -> np.nd
     return v / n if n > 0 else None
 
 
-def join_fragments(fragments: list[Fragment], gap_px: float,
-                   max_turn_deg: float = 60.0) -> list[Fragment]:
+def join_fragments(fragments: list[Fragment], gap_px: float, max_turn_deg: float = 60.0) -> list[Fragment]:
     """Greedily extend each stroke, in order, by the nearest fitting fragment at either end."""
     if gap_px <= 0 or len(fragments) < 2:
         return list(fragments)
@@ -65,9 +64,15 @@ def join_fragments(fragments: list[Fragment], gap_px: float,
     return out
 
 
-def _best_continuation(cur: np.ndarray, pts: list[np.ndarray], heads: np.ndarray,
-                       tails: np.ndarray, alive: np.ndarray, gap_px: float,
-                       cos_max: float) -> tuple[int | None, bool]:
+def _best_continuation(
+    cur: np.ndarray,
+    pts: list[np.ndarray],
+    heads: np.ndarray,
+    tails: np.ndarray,
+    alive: np.ndarray,
+    gap_px: float,
+    cos_max: float,
+) -> tuple[int | None, bool]:
     """The live fragment whose head (flip False) or tail (flip True) continues ``cur``'s tail."""
     end = cur[-1]
     d = np.concatenate([np.linalg.norm(heads - end, axis=1), np.linalg.norm(tails - end, axis=1)])

@@ -21,23 +21,23 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from pipeline.prepare.line_mesh import border_edges, sharp_edges
 from pipeline.core.thumbnails import rasterize
+from pipeline.prepare.line_mesh import border_edges, sharp_edges
 
 INK_LEVEL = 160  # gray below this is ink (lines are black, anti-aliased, on white)
-STEP_PX = 0.5    # sampling step along projected edges
+STEP_PX = 0.5  # sampling step along projected edges
 DEPTH_TOL = 0.01  # world units (model radius 1): a sample this far behind the z-buffer still shows
 
 
 @dataclasses.dataclass
 class ViewScore:
-    sharp_total: int     # visible sharp-edge samples
-    sharp_hit: int       # ... within tol of ink
-    ink_total: int       # ink pixels
-    ink_hit: int         # ... within tol of a visible reference line
+    sharp_total: int  # visible sharp-edge samples
+    sharp_hit: int  # ... within tol of ink
+    ink_total: int  # ink pixels
+    ink_hit: int  # ... within tol of a visible reference line
     outline_total: int = 0  # visible contour and border samples
-    outline_hit: int = 0    # ... within tol of ink
-    faces: int = 0       # bookkeeping for reports (not part of the score)
+    outline_hit: int = 0  # ... within tol of ink
+    faces: int = 0  # bookkeeping for reports (not part of the score)
     cpu_per_view: float = 0.0
 
     def __add__(self, other: "ViewScore") -> "ViewScore":
@@ -109,8 +109,9 @@ def _visible(samples: np.ndarray, zbuf: np.ndarray) -> np.ndarray:
     return ok
 
 
-def score_view(mesh: trimesh.Trimesh, camera: dict, gray: np.ndarray, turn_deg: float,
-               tol_px: float = 2.0) -> ViewScore:
+def score_view(
+    mesh: trimesh.Trimesh, camera: dict, gray: np.ndarray, turn_deg: float, tol_px: float = 2.0
+) -> ViewScore:
     """Recall and precision counts of one drawing (``gray`` uint8) of ``mesh`` from ``camera``
     (a cameras.json view: world_to_camera, projection, orthographic)."""
     S = gray.shape[0]

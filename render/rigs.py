@@ -27,15 +27,19 @@ FRONT_SIDE_TOP = ((0.0, 0.0), (90.0, 0.0), (0.0, 90.0))
 
 def register_rig(name: str) -> Callable[[RigFn], RigFn]:
     """Decorator adding a rig under a new ``name``."""
+
     def add(fn: RigFn) -> RigFn:
         if name in RIGS:
             raise ValueError(f"camera rig {name!r} is already registered")
         RIGS[name] = fn
         return fn
+
     return add
 
 
-def seeded_views(settings: RenderSettings, seed: int, category: str, model_id: str, n: int) -> list[tuple[float, float]]:
+def seeded_views(
+    settings: RenderSettings, seed: int, category: str, model_id: str, n: int
+) -> list[tuple[float, float]]:
     """``n`` seeded (azimuth over 360°, elevation uniform in ``elevation_range``) pairs."""
     from pipeline.core.seeding import rng_for
 
@@ -48,8 +52,9 @@ def seeded_views(settings: RenderSettings, seed: int, category: str, model_id: s
 
 
 @register_rig("random")
-def random_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
-               vertices: np.ndarray) -> list[tuple[float, float]]:
+def random_rig(
+    settings: RenderSettings, seed: int, category: str, model_id: str, vertices: np.ndarray
+) -> list[tuple[float, float]]:
     """``views`` cameras at seeded azimuths over 360° and elevations drawn uniformly from
     ``elevation_range``, seeded by (seed, "render", category, model_id) only."""
     return seeded_views(settings, seed, category, model_id, settings.views)
@@ -66,8 +71,9 @@ def silhouette_extent(settings: RenderSettings, vertices: np.ndarray, azimuth: f
 
 
 @register_rig("representative")
-def representative_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
-                       vertices: np.ndarray) -> list[tuple[float, float]]:
+def representative_rig(
+    settings: RenderSettings, seed: int, category: str, model_id: str, vertices: np.ndarray
+) -> list[tuple[float, float]]:
     """Random views (as "random") that show the model: of ``view_candidates`` seeded draws, the
     first ``views`` whose silhouette spans at least ``min_view_extent`` of the frame and
     ``view_extent_fraction`` of the widest candidate's; a view down a knife's blade, a blob a
@@ -83,7 +89,8 @@ def representative_rig(settings: RenderSettings, seed: int, category: str, model
 
 
 @register_rig("front_side_top")
-def front_side_top_rig(settings: RenderSettings, seed: int, category: str, model_id: str,
-                       vertices: np.ndarray) -> list[tuple[float, float]]:
+def front_side_top_rig(
+    settings: RenderSettings, seed: int, category: str, model_id: str, vertices: np.ndarray
+) -> list[tuple[float, float]]:
     """Three fixed cameras: front, side (+x), top (+y); ``views`` is ignored."""
     return list(FRONT_SIDE_TOP)

@@ -35,8 +35,18 @@ def wedge() -> trimesh.Trimesh:
     """A triangular prism: only creases and silhouettes, sharp corners."""
     tri = np.array([[0.0, 0.0], [1.2, 0.0], [0.2, 0.8]])
     v = np.array([[x, y, z] for z in (-0.25, 0.25) for x, y in tri])
-    f = np.array([[0, 2, 1], [3, 4, 5],                      # ends
-                  [0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4], [2, 0, 3], [2, 3, 5]])
+    f = np.array(
+        [
+            [0, 2, 1],
+            [3, 4, 5],  # ends
+            [0, 1, 4],
+            [0, 4, 3],
+            [1, 2, 5],
+            [1, 5, 4],
+            [2, 0, 3],
+            [2, 3, 5],
+        ]
+    )
     mesh = trimesh.Trimesh(v, f, process=False)
     mesh.fix_normals()
     return normalized(mesh)

@@ -116,8 +116,9 @@ def set_camera(scene: bpy.types.Scene, view: View) -> None:
     scene.camera.matrix_world = Matrix(blender_matrix_world(view).tolist())
 
 
-def set_mesh(scene: bpy.types.Scene, vertices: np.ndarray, faces: np.ndarray,
-             smooth_below_deg: float | None = None) -> None:
+def set_mesh(
+    scene: bpy.types.Scene, vertices: np.ndarray, faces: np.ndarray, smooth_below_deg: float | None = None
+) -> None:
     """Replace the scene's model by a triangle mesh.
 
     Flat-shaded when ``smooth_below_deg`` is None: silhouettes then follow mesh edges exactly but

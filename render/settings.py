@@ -9,8 +9,17 @@ from render.rigs import RIGS
 
 BACKENDS = ("freestyle", "embree")
 # Freestyle edge types a lineset can select (names of its ``select_<type>`` flags).
-EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour", "suggestive_contour",
-              "ridge_valley", "material_boundary", "edge_mark")
+EDGE_TYPES = (
+    "silhouette",
+    "border",
+    "crease",
+    "contour",
+    "external_contour",
+    "suggestive_contour",
+    "ridge_valley",
+    "material_boundary",
+    "edge_mark",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,7 +33,7 @@ class RenderSettings:
     ``elevation_range``; "front_side_top" three fixed cameras (``views`` is ignored).
     """
 
-    backend: str = "freestyle"     # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
+    backend: str = "freestyle"  # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
     views: int = 4
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
@@ -33,20 +42,20 @@ class RenderSettings:
     view_extent_fraction: float = 0.6  # ... and at least this share of the widest candidate's
     view_candidates: int = 32  # ... out of this many seeded draws per model
     orthographic: bool = False
-    lens_mm: float = 50.0          # on a 36 mm sensor: 39.6° field of view
+    lens_mm: float = 50.0  # on a 36 mm sensor: 39.6° field of view
     sensor_mm: float = 36.0
-    margin: float = 1.08           # the unit sphere fills 1/margin of the half-frame
-    crease_angle_deg: float = 134.43   # Blender's default; dihedral angles below it are creases
+    margin: float = 1.08  # the unit sphere fills 1/margin of the half-frame
+    crease_angle_deg: float = 134.43  # Blender's default; dihedral angles below it are creases
     # what is drawn: the paper's occluding contours (silhouette, contours) and sharp edges
     # (crease), plus borders of open surfaces; visible lines only
     edge_types: tuple[str, ...] = ("silhouette", "border", "crease", "contour", "external_contour")
-    smooth_shading: bool = True    # smooth silhouettes on curved parts; edges at creases stay sharp
-    line_thickness: float = 1.5    # pixels
-    min_stroke_px: float = 0.0     # drop strokes shorter than this; >0 also opens gaps in noisy outlines
-    join_gap_px: float = 1.0       # join captured stroke fragments whose ends are this close (0: raw)
-    samples: int = 1               # Cycles samples; lines are anti-aliased by Freestyle itself
-    threads: int = 1               # Cycles render threads and the size of Blender's TBB pool (0: all CPUs)
-    timeout_s: float = 60.0        # per model; a batch gets startup_timeout_s + n * timeout_s
+    smooth_shading: bool = True  # smooth silhouettes on curved parts; edges at creases stay sharp
+    line_thickness: float = 1.5  # pixels
+    min_stroke_px: float = 0.0  # drop strokes shorter than this; >0 also opens gaps in noisy outlines
+    join_gap_px: float = 1.0  # join captured stroke fragments whose ends are this close (0: raw)
+    samples: int = 1  # Cycles samples; lines are anti-aliased by Freestyle itself
+    threads: int = 1  # Cycles render threads and the size of Blender's TBB pool (0: all CPUs)
+    timeout_s: float = 60.0  # per model; a batch gets startup_timeout_s + n * timeout_s
     startup_timeout_s: float = 60.0
 
     def __post_init__(self) -> None:

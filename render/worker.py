@@ -26,11 +26,11 @@ import numpy as np
 from PIL import Image
 
 from pipeline.core.atomic import write_bytes, write_json
-from pipeline.core.stage_keys import settings_hash
 from pipeline.core.errors import ModelError
-from pipeline.core.model_loop import FATAL_ERRORS, ModelJob, run_models
 from pipeline.core.images import encode_png
+from pipeline.core.model_loop import FATAL_ERRORS, ModelJob, run_models
 from pipeline.core.schema import CAMERAS_FILE, STROKES_FILE, view_name
+from pipeline.core.stage_keys import settings_hash
 from pipeline.sources.mesh_io import read_ply
 from render import cameras
 from render.job import FATAL_EXIT, PARENT_ENV, PROGRESS_PREFIX, fatal_to_json, read_job
@@ -99,8 +99,9 @@ def emit_fatal(exc: BaseException) -> None:
     sys.stdout.flush()
 
 
-def _freestyle_view(scene, recorder, view: cameras.View, settings: RenderSettings,
-                    tmp_png: Path) -> tuple[np.ndarray, list[dict]]:
+def _freestyle_view(
+    scene, recorder, view: cameras.View, settings: RenderSettings, tmp_png: Path
+) -> tuple[np.ndarray, list[dict]]:
     """Render one view with Freestyle: the drawing (uint8 gray) and the strokes it captured."""
     from render import scene as sc
 
@@ -113,8 +114,17 @@ def _freestyle_view(scene, recorder, view: cameras.View, settings: RenderSetting
     return grayscale_on_white(rgba), list(recorder.strokes)
 
 
-def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path, out: Path,
-                 settings: RenderSettings, seed: int, scratch: Path) -> dict:
+def render_model(
+    scene,
+    recorder,
+    category: str,
+    model_id: str,
+    mesh_path: Path,
+    out: Path,
+    settings: RenderSettings,
+    seed: int,
+    scratch: Path,
+) -> dict:
     """Draw every view of one model into ``out``; returns its record fields (the loop writes
     record.json). ``scene`` and ``recorder`` are None with the embree backend."""
     t0 = time.perf_counter()
@@ -126,8 +136,12 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
     else:
         from render import scene as sc
 
-        sc.set_mesh(scene, vertices, faces,
-                    smooth_below_deg=180.0 - settings.crease_angle_deg if settings.smooth_shading else None)
+        sc.set_mesh(
+            scene,
+            vertices,
+            faces,
+            smooth_below_deg=180.0 - settings.crease_angle_deg if settings.smooth_shading else None,
+        )
     t_load = time.perf_counter() - t0
     views = cameras.rig(settings, seed, category, model_id, vertices)
     strokes_per_view, view_times, view_cpu = [], [], []
@@ -143,13 +157,15 @@ def render_model(scene, recorder, category: str, model_id: str, mesh_path: Path,
         strokes_per_view.append(strokes)
         view_times.append(round(time.perf_counter() - t, 4))
         view_cpu.append(round(time.process_time() - c, 4))
-    write_json(out / CAMERAS_FILE, {"image_size": settings.image_size,
-                                      "views": [v.to_json() for v in views]})
+    write_json(out / CAMERAS_FILE, {"image_size": settings.image_size, "views": [v.to_json() for v in views]})
     write_json(out / STROKES_FILE, {"image_size": settings.image_size, "views": strokes_per_view})
     return dict(
-        category=category, model_id=model_id,
+        category=category,
+        model_id=model_id,
         mesh={"path": str(mesh_path), "n_vertices": int(len(vertices)), "n_faces": int(len(faces))},
-        seed=int(seed), settings_hash=settings_hash(settings), n_views=len(views),
+        seed=int(seed),
+        settings_hash=settings_hash(settings),
+        n_views=len(views),
         n_strokes=[len(s) for s in strokes_per_view],
         timings={"load_s": round(t_load, 4), "views_s": view_times, "views_cpu_s": view_cpu},
     )
@@ -173,8 +189,9 @@ def blender_scratch(preferred: Path) -> Iterator[Path]:
     if any(c in str(tmp) for c in BLENDER_PATH_SPECIAL):
         tmp.rmdir()
         # the machine's setup, not a model's: fatal for the batch (an OSError), with the reason
-        raise NotADirectoryError(f"no folder Blender can render into: {preferred} and {tmp} "
-                                 f"both hold one of {BLENDER_PATH_SPECIAL!r}")
+        raise NotADirectoryError(
+            f"no folder Blender can render into: {preferred} and {tmp} both hold one of {BLENDER_PATH_SPECIAL!r}"
+        )
     try:
         yield tmp
     finally:
@@ -210,17 +227,26 @@ def _run_job(job: dict, scratch: Path) -> int:
 
         ready = f"{settings.backend} backend ready"
     items = job["items"]
-    emit(0, len(items), f"{ready} in {time.perf_counter() - t0:.2f}s"
-                        f" ({time.process_time():.2f}s CPU since process start)")
+    emit(
+        0,
+        len(items),
+        f"{ready} in {time.perf_counter() - t0:.2f}s ({time.process_time():.2f}s CPU since process start)",
+    )
 
     def one(mj: ModelJob, out: Path) -> dict:
         out.mkdir(parents=True, exist_ok=True)
         return render_model(scene, recorder, category, mj.model_id, mj.path, out, settings, seed, scratch)
 
     jobs = [ModelJob(category, item["model_id"], Path(item["mesh"])) for item in items]
-    run_models("render", stage_dir, jobs, one, emit,
-               on_start=lambda k, mj: emit(k, len(items), f"{mj.model_id} rendering", current=mj.model_id),
-               error_prefix="render error: ")
+    run_models(
+        "render",
+        stage_dir,
+        jobs,
+        one,
+        emit,
+        on_start=lambda k, mj: emit(k, len(items), f"{mj.model_id} rendering", current=mj.model_id),
+        error_prefix="render error: ",
+    )
     return 0
 
 

@@ -29,8 +29,7 @@ def _binary_stl(mesh: trimesh.Trimesh) -> bytes:
 
 
 def _binary_ply(mesh: trimesh.Trimesh) -> bytes:
-    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False,
-                                           include_attributes=False)
+    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False, include_attributes=False)
 
 
 def write_good(folder: Path) -> list[str]:
@@ -113,9 +112,14 @@ def write_corpus(folder: Path) -> dict[str, str]:
     expect["sock"] = "not a regular file but a socket"
 
     # Other files that are not meshes, whatever their name says.
-    for name, magic, what in (("scan.stl", b"\xff\xd8\xff\xe0", "a JPEG image"), ("parts.off", b"PK\x03\x04", "a ZIP archive"),
-                              ("manual.ply", b"%PDF-1.7", "a PDF document"), ("packed.obj", b"\x1f\x8b\x08", "a gzip archive"),
-                              ("tool.glb", b"\x7fELF\x02", "an executable"), ("anim.obj", b"GIF89a", "a GIF image")):
+    for name, magic, what in (
+        ("scan.stl", b"\xff\xd8\xff\xe0", "a JPEG image"),
+        ("parts.off", b"PK\x03\x04", "a ZIP archive"),
+        ("manual.ply", b"%PDF-1.7", "a PDF document"),
+        ("packed.obj", b"\x1f\x8b\x08", "a gzip archive"),
+        ("tool.glb", b"\x7fELF\x02", "an executable"),
+        ("anim.obj", b"GIF89a", "a GIF image"),
+    ):
         (folder / name).write_bytes(magic + bytes(500))
         expect[Path(name).stem] = f"not a mesh: the file is {what}"
     (folder / "page.gltf").write_text("<html><body>404 not found</body></html>\n")
@@ -193,12 +197,21 @@ BAD_PARAMETERS = (
     (dict(categories="mgu"), "--categories: unknown 'mgu' for source"),
     (dict(categories=".."), "--categories: '..' is not a category name"),
     (dict(categories="mug/../../x"), "is not a category name"),
-    (dict(prepare_settings='{"resolution": "abc"}'), "--prepare-settings: PrepareSettings.resolution must be an integer, got 'abc'"),
+    (
+        dict(prepare_settings='{"resolution": "abc"}'),
+        "--prepare-settings: PrepareSettings.resolution must be an integer, got 'abc'",
+    ),
     (dict(prepare_settings='{"resolution": -5}'), "--prepare-settings: resolution must be >= 1"),
     (dict(prepare_settings='{"resolution": 5000'), "--prepare-settings: not valid JSON"),
-    (dict(prepare_settings='[1]'), "--prepare-settings: settings overrides must be a JSON object"),
-    (dict(render_settings='{"elevation_range": [0]}'), "--render-settings: RenderSettings.elevation_range must be a list of 2"),
-    (dict(render_settings='{"smooth_shading": 1}'), "--render-settings: RenderSettings.smooth_shading must be true/false"),
+    (dict(prepare_settings="[1]"), "--prepare-settings: settings overrides must be a JSON object"),
+    (
+        dict(render_settings='{"elevation_range": [0]}'),
+        "--render-settings: RenderSettings.elevation_range must be a list of 2",
+    ),
+    (
+        dict(render_settings='{"smooth_shading": 1}'),
+        "--render-settings: RenderSettings.smooth_shading must be true/false",
+    ),
     (dict(augment_settings='{"nope": 1}'), "--augment-settings: AugmentSettings has no setting 'nope'"),
     (dict(shard_settings='{"max_samples_per_shard": 0}'), "--shard-settings: max_samples_per_shard"),
     (dict(max_failed_fraction=1.5), "--max-failed-fraction must lie in [0, 1]"),
@@ -218,4 +231,3 @@ def write_unreadable(path: Path) -> None:
     box = trimesh.creation.box()
     path.write_text(_obj_text(box.vertices, box.faces))
     path.chmod(0)
-

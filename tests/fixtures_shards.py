@@ -16,8 +16,17 @@ import numpy as np
 import webdataset as wds
 
 from pipeline.core.atomic import write_json
-from pipeline.core.schema import (CAMERAS_MEMBER, MANIFEST, META_MEMBER, POINTS_MEMBER, STROKES_MEMBER, SampleMeta,
-                                  sample_key, shard_name, sketch_name)
+from pipeline.core.schema import (
+    CAMERAS_MEMBER,
+    MANIFEST,
+    META_MEMBER,
+    POINTS_MEMBER,
+    STROKES_MEMBER,
+    SampleMeta,
+    sample_key,
+    shard_name,
+    sketch_name,
+)
 from pipeline.core.seeding import rng_for
 
 _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
@@ -99,8 +108,9 @@ def write_fixture_shards(
     return root
 
 
-def _sample(category: str, split: str, index: int, views: int, variants: int, size: int, n_points: int,
-            seed: int) -> dict:
+def _sample(
+    category: str, split: str, index: int, views: int, variants: int, size: int, n_points: int, seed: int
+) -> dict:
     model_id = f"{index:05d}"
     rng = rng_for(seed, "fixture", category, model_id, 0, 0)
     half = rng.uniform(0.2, 1.0, size=3)
@@ -119,9 +129,22 @@ def _sample(category: str, split: str, index: int, views: int, variants: int, si
     sample[CAMERAS_MEMBER] = json.dumps({"image_size": size, "views": cams}).encode()
     sample[STROKES_MEMBER] = json.dumps({"out_size": size, "views": []}).encode()
     # a box has no part labels: every part-dependent field is None, as for an unlabelled source
-    meta = SampleMeta(key=key, category=category, model_id=model_id, source=None, source_sha256=None,
-                      normalization={"center": [0.0, 0.0, 0.0], "scale": 1.0}, part_labels=None, present_parts=None,
-                      point_part_names=None, bodies=1, seed=seed, settings_hash="fixture", split=split,
-                      sketches=[sketch_name(v, w) for v in range(views) for w in range(variants)], points=n_points)
+    meta = SampleMeta(
+        key=key,
+        category=category,
+        model_id=model_id,
+        source=None,
+        source_sha256=None,
+        normalization={"center": [0.0, 0.0, 0.0], "scale": 1.0},
+        part_labels=None,
+        present_parts=None,
+        point_part_names=None,
+        bodies=1,
+        seed=seed,
+        settings_hash="fixture",
+        split=split,
+        sketches=[sketch_name(v, w) for v in range(views) for w in range(variants)],
+        points=n_points,
+    )
     sample[META_MEMBER] = json.dumps(meta.to_json()).encode()
     return sample

@@ -33,16 +33,31 @@ TRAIN_ALSO_MAY_IMPORT = {"train.templates": ("pipeline.sources",)}
 # Inside train/, structures <- ops <- losses <- model <- commands: geometry knows no template,
 # templates no loss, losses no network; the commands sit on top.
 TRAIN_LEVELS = {
-    "train.errors": 0, "train.grid_nn": 0, "train.nn_search": 0, "train.resnet": 0, "train.augmentation": 0,
-    "train.distributed": 0, "train.plots": 0, "train.weight_average": 0, "train.sketch_input": 0,
+    "train.errors": 0,
+    "train.grid_nn": 0,
+    "train.nn_search": 0,
+    "train.resnet": 0,
+    "train.augmentation": 0,
+    "train.distributed": 0,
+    "train.plots": 0,
+    "train.weight_average": 0,
+    "train.sketch_input": 0,
     "train.geometry": 1,
     "train.export": 2,  # CAD files and mesh checks of patch arrays
     "train.templates": 3,
     "train.losses": 4,
-    "train.metrics": 5, "train.model": 5, "train.objective": 5, "train.data": 5,
+    "train.metrics": 5,
+    "train.model": 5,
+    "train.objective": 5,
+    "train.data": 5,
     "train.fit": 6,
-    "train.evaluate": 7, "train.predict": 7, "train.interpolate": 7, "train.recipes": 7,
-    "train.cli": 8, "train.__main__": 8, "train": 8,
+    "train.evaluate": 7,
+    "train.predict": 7,
+    "train.interpolate": 7,
+    "train.recipes": 7,
+    "train.cli": 8,
+    "train.__main__": 8,
+    "train": 8,
 }
 PACKAGES = ("pipeline", "render", "augment", "train", "workflows")
 
@@ -70,9 +85,12 @@ def imported_modules(path: Path) -> list[tuple[int, str]]:
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             found.append((node.lineno, node.module))
             # `from pipeline import x` names a submodule when x is one
-            found += [(node.lineno, f"{node.module}.{a.name}") for a in node.names
-                      if (ROOT / node.module.replace(".", "/") / a.name).exists()
-                      or (ROOT / node.module.replace(".", "/") / f"{a.name}.py").exists()]
+            found += [
+                (node.lineno, f"{node.module}.{a.name}")
+                for a in node.names
+                if (ROOT / node.module.replace(".", "/") / a.name).exists()
+                or (ROOT / node.module.replace(".", "/") / f"{a.name}.py").exists()
+            ]
     return [(line, m) for line, m in found if m.split(".")[0] in PACKAGES]
 
 
@@ -104,12 +122,17 @@ def upward_imports(files: dict[str, Path] | None = None) -> list[str]:
 
 
 def test_every_module_has_a_level():
-    unplaced = [module_name(p) for p in project_files()
-                if not module_name(p).startswith("train") and level_of(module_name(p)) is None
-                and module_name(p) != "pipeline"]
+    unplaced = [
+        module_name(p)
+        for p in project_files()
+        if not module_name(p).startswith("train") and level_of(module_name(p)) is None and module_name(p) != "pipeline"
+    ]
     assert unplaced == []
-    assert [module_name(p) for p in project_files()
-            if module_name(p).startswith("train") and level_of(module_name(p), TRAIN_LEVELS) is None] == []
+    assert [
+        module_name(p)
+        for p in project_files()
+        if module_name(p).startswith("train") and level_of(module_name(p), TRAIN_LEVELS) is None
+    ] == []
 
 
 def test_imports_point_down_the_stage_order():
@@ -125,9 +148,11 @@ def test_the_check_sees_upward_imports(tmp_path):
     geometry = tmp_path / "geometry_probe.py"
     geometry.write_text("from train.losses.collision import collision_loss\n")
     bad = upward_imports({"pipeline.core.probe": base, "train.probe": trainer, "train.geometry.probe": geometry})
-    assert bad == ["probe.py:3 imports render.settings (level 0 importing level 3)",
-                   "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)",
-                   "geometry_probe.py:1 imports train.losses.collision (train level 1 importing train level 4)"]
+    assert bad == [
+        "probe.py:3 imports render.settings (level 0 importing level 3)",
+        "trainer_probe.py:1 imports augment.pencil (train may import only the base layer)",
+        "geometry_probe.py:1 imports train.losses.collision (train level 1 importing train level 4)",
+    ]
 
 
 def package_graph() -> dict[str, set[str]]:

@@ -18,14 +18,17 @@ SETTINGS = AugmentSettings(variants=3, out_size=64)
 CAT = "testcat"
 
 
-def fake_render(folder: Path, images: list[np.ndarray], strokes: list[list[np.ndarray]] | None,
-                ok: bool = True) -> Path:
+def fake_render(
+    folder: Path, images: list[np.ndarray], strokes: list[list[np.ndarray]] | None, ok: bool = True
+) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     for i, img in enumerate(images):
         Image.fromarray(img).save(folder / f"view_{i:02d}.png")
     if strokes is not None:
-        write_json(folder / "strokes.json", {"views": [
-            [{"type": "silhouette", "points": s.tolist()} for s in view] for view in strokes]})
+        write_json(
+            folder / "strokes.json",
+            {"views": [[{"type": "silhouette", "points": s.tolist()} for s in view] for view in strokes]},
+        )
     if ok:
         write_ok(folder, category=CAT)
     return folder
@@ -126,6 +129,5 @@ def test_same_output_in_another_process():
     # another interpreter with another hash seed: nothing may depend on set order or id()
     env = {**os.environ, "PYTHONHASHSEED": "12345"}
     script = f"import sys; sys.path.insert(0, {root!r}); from tests.test_augment_batch import variants_digest; print(variants_digest())"
-    out = subprocess.run([sys.executable, "-c", script], env=env, cwd=root,
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == variants_digest()

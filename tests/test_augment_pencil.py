@@ -10,15 +10,16 @@ from augment.pencil import draw_pencil
 from augment.settings import AugmentSettings
 from augment.variants import view_variants
 
-PLAIN = dataclasses.replace(AugmentSettings(), grain=0.0, pressure_noise=0.0, paper_mottle=0.0,
-                            tones=((0.8, 0.8),))
+PLAIN = dataclasses.replace(AugmentSettings(), grain=0.0, pressure_noise=0.0, paper_mottle=0.0, tones=((0.8, 0.8),))
 
 
 def shape_strokes() -> list[np.ndarray]:
     t = np.linspace(0, 2 * np.pi, 200)
-    return [np.stack([64 + 40 * np.cos(t), 64 + 30 * np.sin(t)], 1),
-            np.array([[20.0, 20.0], [108.0, 20.0], [108.0, 108.0]]),
-            np.array([[20.0, 110.0], [100.0, 40.0]])]
+    return [
+        np.stack([64 + 40 * np.cos(t), 64 + 30 * np.sin(t)], 1),
+        np.array([[20.0, 20.0], [108.0, 20.0], [108.0, 108.0]]),
+        np.array([[20.0, 110.0], [100.0, 40.0]]),
+    ]
 
 
 def ink(img: np.ndarray) -> float:

@@ -6,7 +6,6 @@ Slow: procedural models of several categories (prepare + render + augment).
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
@@ -61,12 +60,20 @@ def test_vectorization_f1_on_procedural_categories(tmp_path):
     for cat in ("airplane", "car", "mug", "guitar", "knife"):
         refs = list_models("procedural", cat, 2, 0, tmp_path)
         prep = prepare_batch(refs, tmp_path / "prep", PrepareSettings())
-        items = [(r.model_id, tmp_path / "prep" / cat / r.model_id / "mesh.ply")
-                 for r, rec in zip(refs, prep) if rec["status"] == "ok"]
+        items = [
+            (r.model_id, tmp_path / "prep" / cat / r.model_id / "mesh.ply")
+            for r, rec in zip(refs, prep)
+            if rec["status"] == "ok"
+        ]
         assert items, cat
         render_batch(cat, items, tmp_path / "render", RENDER, seed=0)
-        recs = augment_batch(cat, [(mid, tmp_path / "render" / cat / mid) for mid, _ in items],
-                             tmp_path / "augment", AugmentSettings(variants=1), seed=0)
+        recs = augment_batch(
+            cat,
+            [(mid, tmp_path / "render" / cat / mid) for mid, _ in items],
+            tmp_path / "augment",
+            AugmentSettings(variants=1),
+            seed=0,
+        )
         f1s += check_records(recs)
     assert np.mean(f1s) >= 0.97
 
@@ -78,8 +85,23 @@ def test_contact_sheet(sample_renders, tmp_path):
 
     root, _ = sample_renders
     out = tmp_path / "sheet.png"
-    assert main(["--render-dir", str(root / "render"), "--out", str(out), "--variants", "2",
-                 "--size", "96", "--models", "3"]) == 0
+    assert (
+        main(
+            [
+                "--render-dir",
+                str(root / "render"),
+                "--out",
+                str(out),
+                "--variants",
+                "2",
+                "--size",
+                "96",
+                "--models",
+                "3",
+            ]
+        )
+        == 0
+    )
     sheet = np.asarray(Image.open(out))
     # 3 models → 3 rows of (render, strokes, 2 variants) cells of 96 px plus labels.
     assert sheet.shape[0] > 3 * 96 and sheet.shape[1] > 4 * 96 and sheet.shape[1] < 5 * 96

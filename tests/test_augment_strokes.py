@@ -10,8 +10,8 @@ import pytest
 from augment import strokes as A
 from augment.fitting import polyline_length
 from augment.settings import AugmentSettings, VectorizeSettings
-from pipeline.core.stage_keys import settings_hash
 from pipeline.core.settings_io import from_dict
+from pipeline.core.stage_keys import settings_hash
 
 
 def lines(n: int = 20, length: float = 100.0) -> list[np.ndarray]:

@@ -19,10 +19,10 @@ from as_user import call_as  # noqa: E402
 from bad_inputs import write_corpus, write_good, write_unreadable, write_unusual_good  # noqa: E402
 
 from pipeline.dataset.manifest import read_manifest  # noqa: E402
-from pipeline.sources.mesh_io import _DENIED, load_mesh  # noqa: E402
-from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
 from pipeline.dataset.shards import list_shards  # noqa: E402
+from pipeline.prepare.batch import PrepareSettings, prepare_batch  # noqa: E402
 from pipeline.sources.layouts import list_models  # noqa: E402
+from pipeline.sources.mesh_io import _DENIED, load_mesh  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
 
 
@@ -53,6 +53,7 @@ def _nobody() -> tuple[int, int]:
 
 def _load_as(uid_gid: tuple[int, int] | None, path: Path) -> str:
     """load_mesh(path) as ``uid_gid``; returns the error text."""
+
     def load() -> str:
         load_mesh(path)
         return "loaded"
@@ -80,7 +81,10 @@ def test_unreadable_file_names_permission(tmp_path: Path) -> None:
         hidden.mkdir()
         (hidden / "box.obj").write_text("v 0 0 0\n")
         hidden.chmod(0)
-        assert _load_as(who, hidden / "box.obj") == f"ModelError: {hidden / 'box.obj'}: unreadable: {_DENIED} on a folder above it"
+        assert (
+            _load_as(who, hidden / "box.obj")
+            == f"ModelError: {hidden / 'box.obj'}: unreadable: {_DENIED} on a folder above it"
+        )
     finally:
         if (folder / "private").exists():
             (folder / "private").chmod(0o700)
@@ -93,10 +97,24 @@ def test_build_with_bad_corpus_lists_every_failure(tmp_path: Path) -> None:
     expect = write_corpus(src)
     good = write_good(src) + write_unusual_good(src)
     names = {p.stem: p.name for p in src.iterdir()}
-    ok = luigi.build([BuildDataset(source=str(tmp_path / "src"), models_per_category=0, views=1, variants=1,
-                                   image_size=64, out_size=64, batch_size=8, work_dir=str(tmp_path / "work"),
-                                   dataset_dir=str(tmp_path / "ds"))],
-                     local_scheduler=True, workers=1, log_level="WARNING")
+    ok = luigi.build(
+        [
+            BuildDataset(
+                source=str(tmp_path / "src"),
+                models_per_category=0,
+                views=1,
+                variants=1,
+                image_size=64,
+                out_size=64,
+                batch_size=8,
+                work_dir=str(tmp_path / "work"),
+                dataset_dir=str(tmp_path / "ds"),
+            )
+        ],
+        local_scheduler=True,
+        workers=1,
+        log_level="WARNING",
+    )
     assert ok
     cat = read_manifest(tmp_path / "ds")["categories"]["mug"]
     failed = {f["model_id"]: f for f in cat["failed"]}
@@ -106,6 +124,7 @@ def test_build_with_bad_corpus_lists_every_failure(tmp_path: Path) -> None:
         assert f["stage"] == "prepare" and f["path"] == f"mug/{names[mid]}", f
         assert words.lower() in f["reason"].lower(), (mid, f["reason"])
     assert cat["models_built"] == len(good) and cat["models_failed"] == len(expect)
-    keys = [s["__key__"] for s in wds.WebDataset([str(p) for p in list_shards(tmp_path / "ds" / "mug")],
-                                                 shardshuffle=False)]
+    keys = [
+        s["__key__"] for s in wds.WebDataset([str(p) for p in list_shards(tmp_path / "ds" / "mug")], shardshuffle=False)
+    ]
     assert sorted(keys) == sorted(f"mug_{m}" for m in good)

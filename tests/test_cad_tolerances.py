@@ -118,7 +118,9 @@ def sampled_box(shape, samples: int = 65) -> np.ndarray:
         face = TopoDS.Face(ex.Current())
         surface = BRep_Tool.Surface_s(face)
         u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
-        pts = np.array([surface.Value(u, v).Coord() for u in np.linspace(u0, u1, samples) for v in np.linspace(v0, v1, samples)])
+        pts = np.array(
+            [surface.Value(u, v).Coord() for u in np.linspace(u0, u1, samples) for v in np.linspace(v0, v1, samples)]
+        )
         lo, hi = np.minimum(lo, pts.min(0)), np.maximum(hi, pts.max(0))
         ex.Next()
     return np.stack([lo, hi])

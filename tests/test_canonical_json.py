@@ -28,10 +28,15 @@ class Text(str):
 def random_doc(rng: np.random.Generator, depth: int = 0):
     """Nested lists/dicts of the values stage files hold, plus the awkward ones."""
     pick = rng.integers(0, 12 if depth < 4 else 7)
-    leaves = [lambda: float(rng.normal() * 10.0 ** rng.integers(-8, 8)), lambda: int(rng.integers(-5, 10**6)),
-              lambda: "s\u00e9\"\\\n" * int(rng.integers(0, 2)), lambda: None, lambda: bool(rng.integers(0, 2)),
-              lambda: [float("nan"), float("inf"), -float("inf"), 0.0, -0.0][rng.integers(0, 5)],
-              lambda: np.float64(rng.normal())]
+    leaves = [
+        lambda: float(rng.normal() * 10.0 ** rng.integers(-8, 8)),
+        lambda: int(rng.integers(-5, 10**6)),
+        lambda: 's\u00e9"\\\n' * int(rng.integers(0, 2)),
+        lambda: None,
+        lambda: bool(rng.integers(0, 2)),
+        lambda: [float("nan"), float("inf"), -float("inf"), 0.0, -0.0][rng.integers(0, 5)],
+        lambda: np.float64(rng.normal()),
+    ]
     if pick < len(leaves):
         return leaves[pick]()
     if pick == 7:  # a stroke: points of two numbers (the fast path), sometimes with a non-number
@@ -56,11 +61,25 @@ def test_same_text_as_json_dumps_on_random_documents(seed):
 
 def test_same_text_for_the_awkward_cases():
     cases = [
-        [], {}, [[]], [[], [1.0]], [[1.0, 2.0], []], [[1.5, float("nan")], [float("inf"), -2]],
-        [True, 1, 1.0], [[True, 2.0]], Kind.A, [Kind.A, 2.5], Text("x"), {"a": Text("y")},
-        np.arange(6, dtype=np.float32).reshape(3, 2), {"p": Path("/a/b")}, np.int64(4),
-        {"b": 1, "a": {"d": [1e-300, 1e300, 5e-324], "c": "\u2603"}}, (1.0, (2.0, 3.0)),
-        [np.float64(0.1), 0.2], [[np.float64(0.1), 0.2]],
+        [],
+        {},
+        [[]],
+        [[], [1.0]],
+        [[1.0, 2.0], []],
+        [[1.5, float("nan")], [float("inf"), -2]],
+        [True, 1, 1.0],
+        [[True, 2.0]],
+        Kind.A,
+        [Kind.A, 2.5],
+        Text("x"),
+        {"a": Text("y")},
+        np.arange(6, dtype=np.float32).reshape(3, 2),
+        {"p": Path("/a/b")},
+        np.int64(4),
+        {"b": 1, "a": {"d": [1e-300, 1e300, 5e-324], "c": "\u2603"}},
+        (1.0, (2.0, 3.0)),
+        [np.float64(0.1), 0.2],
+        [[np.float64(0.1), 0.2]],
     ]
     for obj in cases:
         assert canonical_dumps(obj, _json_default) == standard(obj), obj
@@ -78,7 +97,20 @@ def test_leaves_what_it_does_not_write_to_json_dumps():
 
 
 def test_stage_files_are_written_in_the_same_bytes():
-    strokes = {"out_size": 128, "views": [{"view": 0, "variants": [
-        {"variant": k, "width": 1.25, "strokes": np.round(np.random.default_rng(k).normal(size=(3, 7, 2)) * 50, 2).tolist()}
-        for k in range(4)]}]}
+    strokes = {
+        "out_size": 128,
+        "views": [
+            {
+                "view": 0,
+                "variants": [
+                    {
+                        "variant": k,
+                        "width": 1.25,
+                        "strokes": np.round(np.random.default_rng(k).normal(size=(3, 7, 2)) * 50, 2).tolist(),
+                    }
+                    for k in range(4)
+                ],
+            }
+        ],
+    }
     assert dumps_json(strokes) == standard(strokes) + "\n"

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import write_json
 from pipeline.core.records import model_dir, write_ok
 from workflows import console, steps
+from workflows.build_settings import BuildSettings
 from workflows.console import StageCounter, batch_task_ids, stage_counts
 from workflows.tasks import BuildDataset, CategoryShards, PrepareBatch, RenderBatch
 
@@ -20,8 +20,13 @@ CATEGORIES = "mug,knife"
 
 
 def _root(tmp_path: Path, models: int, batch_size: int = 4) -> BuildDataset:
-    return BuildDataset(categories=CATEGORIES, models_per_category=models, batch_size=batch_size,
-                        work_dir=str(tmp_path / "work"), dataset_dir=str(tmp_path / "ds"))
+    return BuildDataset(
+        categories=CATEGORIES,
+        models_per_category=models,
+        batch_size=batch_size,
+        work_dir=str(tmp_path / "work"),
+        dataset_dir=str(tmp_path / "ds"),
+    )
 
 
 def _finish(s: BuildSettings, stage: str, lst: dict, batch: int) -> None:
@@ -56,8 +61,11 @@ def test_counts_match_a_full_recount_through_a_build(tmp_path: Path) -> None:
     root = _root(tmp_path, 10)
     s, listings = root.build, root.listings()
     counter = StageCounter(s, listings, batch_task_ids(root, listings))
-    assert counter.counts() == stage_counts(s, listings) == {
-        "prepare": (0, 20), "render": (0, 20), "augment": (0, 20), "shards": (0, 2)}
+    assert (
+        counter.counts()
+        == stage_counts(s, listings)
+        == {"prepare": (0, 20), "render": (0, 20), "augment": (0, 20), "shards": (0, 2)}
+    )
     mug, knife = listings
     _finish(s, "prepare", mug, 0)
     _finish(s, "prepare", knife, 2)  # the short last batch: 2 models
@@ -88,6 +96,7 @@ def _calls(monkeypatch: pytest.MonkeyPatch, counter: StageCounter) -> dict[str, 
         def wrapped(*a, **k):
             calls[name] += 1
             return fn(*a, **k)
+
         return wrapped
 
     with monkeypatch.context() as m:
@@ -100,8 +109,9 @@ def _calls(monkeypatch: pytest.MonkeyPatch, counter: StageCounter) -> dict[str, 
 
 
 @pytest.mark.parametrize("started", [False, True])
-def test_a_tick_costs_the_same_for_40_and_4000_models(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                      started: bool) -> None:
+def test_a_tick_costs_the_same_for_40_and_4000_models(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, started: bool
+) -> None:
     ticks = []
     for models in (40, 4000):
         root = _root(tmp_path / str(models), models)
@@ -117,8 +127,12 @@ def test_a_tick_costs_the_same_for_40_and_4000_models(tmp_path: Path, monkeypatc
     small, large = ticks
     assert small == large
     # nothing changed: one stat per watched folder/file and per running model, nothing re-read
-    assert large == {"stat": 1 + 3 * 2 + 2 * 2 + (4 if started else 0), "listdir": 0, "stage_dir": 0,
-                     "category_problems": 0}
+    assert large == {
+        "stat": 1 + 3 * 2 + 2 * 2 + (4 if started else 0),
+        "listdir": 0,
+        "stage_dir": 0,
+        "category_problems": 0,
+    }
 
 
 def test_a_finished_batch_re_lists_only_its_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -148,8 +162,9 @@ def test_a_change_within_a_coarse_timestamp_is_seen(tmp_path: Path, monkeypatch:
     assert counter.counts()["prepare"] == (8, 80)
 
 
-def test_shards_are_re_checked_when_the_category_folder_changes(tmp_path: Path,
-                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+def test_shards_are_re_checked_when_the_category_folder_changes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     root = _root(tmp_path, 8)
     s, listings = root.build, root.listings()
     counter = StageCounter(s, listings, batch_task_ids(root, listings))

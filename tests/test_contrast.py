@@ -50,16 +50,39 @@ def test_loader_pairs_each_sample_with_another_drawing_of_its_model(shards):
         assert pairs.shape == firsts.shape == (4, 1, 32, 32)
         assert all(not torch.equal(p, f) for p, f in zip(pairs, firsts))
     assert 0 < pairs.mean() < 0.5  # inked drawings on paper
-    plain = next(iter(make_loader(shards, "knife", "train", DataSettings(max_views=1, n_points=200, image_size=32,
-                                                                       shuffle_buffer=4), seed=2, batch_size=4)))
+    plain = next(
+        iter(
+            make_loader(
+                shards,
+                "knife",
+                "train",
+                DataSettings(max_views=1, n_points=200, image_size=32, shuffle_buffer=4),
+                seed=2,
+                batch_size=4,
+            )
+        )
+    )
     assert "pair_images" not in plain
 
 
 def test_a_run_with_the_contrastive_term_logs_it_and_rebuilds(shards, tmp_path):
     out = tmp_path / "contrast"
-    base = dict(dataset=str(shards), category="knife", template="sphere24", out=str(out), steps=3, batch_size=3,
-                workers=0, n_points=300, image_size=32, max_views=1, log_every=1, checkpoint_every=100,
-                encoder_width=16, weights=LossWeights(collision=0.0))  # fmt: skip
+    base = dict(
+        dataset=str(shards),
+        category="knife",
+        template="sphere24",
+        out=str(out),
+        steps=3,
+        batch_size=3,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=1,
+        log_every=1,
+        checkpoint_every=100,
+        encoder_width=16,
+        weights=LossWeights(collision=0.0),
+    )
     fit(FitSettings(**base, contrast=0.5), progress=False)
     rows = list(csv.DictReader(open(out / "log.csv")))
     assert len(rows) == 3 and all(float(r["contrast"]) > 0 for r in rows)

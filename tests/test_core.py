@@ -5,16 +5,21 @@ import numpy as np
 import pytest
 
 from pipeline.core.atomic import atomic_path, read_json, write_json
-from pipeline.core.stage_keys import settings_hash, stage_key
 from pipeline.core.seeding import derive_seed, rng_for
+from pipeline.core.stage_keys import settings_hash, stage_key
 
 
 def test_seed_depends_on_every_key_part():
     base = derive_seed(0, "render", "car", "00001", 0, 0)
     assert base == derive_seed(0, "render", "car", "00001", 0, 0)
-    for other in [(1, "render", "car", "00001", 0, 0), (0, "augment", "car", "00001", 0, 0),
-                  (0, "render", "mug", "00001", 0, 0), (0, "render", "car", "00002", 0, 0),
-                  (0, "render", "car", "00001", 1, 0), (0, "render", "car", "00001", 0, 1)]:
+    for other in [
+        (1, "render", "car", "00001", 0, 0),
+        (0, "augment", "car", "00001", 0, 0),
+        (0, "render", "mug", "00001", 0, 0),
+        (0, "render", "car", "00002", 0, 0),
+        (0, "render", "car", "00001", 1, 0),
+        (0, "render", "car", "00001", 0, 1),
+    ]:
         assert derive_seed(*other) != base
     assert np.array_equal(rng_for(3, "x").random(4), rng_for(3, "x").random(4))
 

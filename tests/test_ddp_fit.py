@@ -20,8 +20,9 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _worker(rank: int, world: int, port: int, dataset: str, out: str, report: str,
-            overrides: dict | None = None) -> None:
+def _worker(
+    rank: int, world: int, port: int, dataset: str, out: str, report: str, overrides: dict | None = None
+) -> None:
     import torch
 
     from train.errors import UsageError
@@ -29,9 +30,24 @@ def _worker(rank: int, world: int, port: int, dataset: str, out: str, report: st
     from train.losses.weights import LossWeights
 
     torch.set_num_threads(1)
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank))
-    base = dict(dataset=dataset, category="knife", template="sphere24", out=out, steps=2, batch_size=2, workers=0,
-                n_points=300, image_size=32, max_views=2, log_every=1, device="cpu", weights=LossWeights(collision=0.0))
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world), LOCAL_RANK=str(rank)
+    )
+    base = dict(
+        dataset=dataset,
+        category="knife",
+        template="sphere24",
+        out=out,
+        steps=2,
+        batch_size=2,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=2,
+        log_every=1,
+        device="cpu",
+        weights=LossWeights(collision=0.0),
+    )
     try:
         res = fit(FitSettings(**{**base, **(overrides or {})}), progress=False)
     except UsageError as exc:  # reported, so a test sees what each rank said

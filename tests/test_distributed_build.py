@@ -23,9 +23,26 @@ from workflows.steps import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = ROOT / ".venv" / "bin"
-SMALL = ["--categories", "knife,mug", "--models-per-category", "4", "--batch-size", "2", "--views", "1",
-         "--variants", "1", "--image-size", "64", "--out-size", "64",
-         "--shard-settings", '{"max_samples_per_shard": 2}', "--log-level", "WARNING"]
+SMALL = [
+    "--categories",
+    "knife,mug",
+    "--models-per-category",
+    "4",
+    "--batch-size",
+    "2",
+    "--views",
+    "1",
+    "--variants",
+    "1",
+    "--image-size",
+    "64",
+    "--out-size",
+    "64",
+    "--shard-settings",
+    '{"max_samples_per_shard": 2}',
+    "--log-level",
+    "WARNING",
+]
 BATCH_TASKS = ("PrepareBatch", "RenderBatch", "AugmentBatch")
 
 
@@ -46,9 +63,21 @@ def luigid(tmp_path: Path):
     cfg.write_text("[resources]\nblender = 1\n")
     port = free_port()
     proc = subprocess.Popen(  # the documented launcher: 127.0.0.1, state in a private folder
-        [str(BIN / "python"), "-m", "workflows.scheduler", "--port", str(port), "--state-dir", str(tmp_path / "luigid")],
-        cwd=ROOT, env=env_with(LUIGI_CONFIG_PATH=str(cfg)), stdout=subprocess.DEVNULL,
-        stderr=open(tmp_path / "luigid.err", "wb"), start_new_session=True)
+        [
+            str(BIN / "python"),
+            "-m",
+            "workflows.scheduler",
+            "--port",
+            str(port),
+            "--state-dir",
+            str(tmp_path / "luigid"),
+        ],
+        cwd=ROOT,
+        env=env_with(LUIGI_CONFIG_PATH=str(cfg)),
+        stdout=subprocess.DEVNULL,
+        stderr=open(tmp_path / "luigid.err", "wb"),
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -72,16 +101,37 @@ def dirs(root: Path) -> list[str]:
 @pytest.mark.slow  # a local build plus a two-worker build with Blender (~1 min on 2 cores)
 def test_two_workers_share_one_build(luigid: int, tmp_path: Path) -> None:
     luigi = [str(BIN / "luigi"), "--module", "workflows", "BuildDataset"]
-    ref = subprocess.run(luigi + ["--local-scheduler"] + SMALL + dirs(tmp_path / "local"), cwd=ROOT,
-                         env=env_with(), capture_output=True, text=True, timeout=600)
+    ref = subprocess.run(
+        luigi + ["--local-scheduler"] + SMALL + dirs(tmp_path / "local"),
+        cwd=ROOT,
+        env=env_with(),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert ref.returncode == 0, ref.stderr[-3000:]
 
     shared = tmp_path / "shared"
     # --no-lock: without it Luigi's pid lock turns the second identical command on this machine away
-    cmd = luigi + ["--scheduler-host", "127.0.0.1", "--scheduler-port", str(luigid), "--workers", "1",
-                   "--worker-keep-alive", "--no-lock"] + SMALL + dirs(shared)
-    workers = [subprocess.Popen(cmd, cwd=ROOT, env=env_with(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True) for _ in range(2)]
+    cmd = (
+        luigi
+        + [
+            "--scheduler-host",
+            "127.0.0.1",
+            "--scheduler-port",
+            str(luigid),
+            "--workers",
+            "1",
+            "--worker-keep-alive",
+            "--no-lock",
+        ]
+        + SMALL
+        + dirs(shared)
+    )
+    workers = [
+        subprocess.Popen(cmd, cwd=ROOT, env=env_with(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        for _ in range(2)
+    ]
     outs = [w.communicate(timeout=600)[0] for w in workers]
     assert [w.returncode for w in workers] == [0, 0], "\n".join(o[-3000:] for o in outs)
 
@@ -95,8 +145,11 @@ def test_two_workers_share_one_build(luigid: int, tmp_path: Path) -> None:
     pids = {recs[0]["pid"] for recs in runs.values()}
     assert pids == {w.pid for w in workers}  # both workers took part, nothing else ran tasks
     # [resources] blender = 1 on the scheduler: render batches never overlapped in time
-    spans = sorted((r[0]["events"][0]["time"], r[0]["events"][1]["time"])
-                   for t, r in batch_runs.items() if t.startswith("RenderBatch"))
+    spans = sorted(
+        (r[0]["events"][0]["time"], r[0]["events"][1]["time"])
+        for t, r in batch_runs.items()
+        if t.startswith("RenderBatch")
+    )
     assert all(end <= nxt_start for (_, end), (nxt_start, _) in zip(spans, spans[1:])), spans
 
     for cat in ("knife", "mug"):

@@ -130,7 +130,9 @@ def test_step_is_one_sewn_closed_solid_matching_the_obj(prediction):
     assert res["step"] == "solid" and res["clean"] and res["problems"] == []
     t = load_template(TEMPLATE)
     template = t.patches_from_params(t.initial_params(torch.float64)[None])[0].numpy()
-    assert np.abs(np.load(out / "patches.npy") - template).max() > 0.01  # bent, not the cuboids (0.017 with the 32-patch mug)
+    assert (
+        np.abs(np.load(out / "patches.npy") - template).max() > 0.01
+    )  # bent, not the cuboids (0.017 with the 32-patch mug)
 
 
 def test_iges_keeps_exact_bicubic_surfaces_that_sew_into_the_same_solid(prediction):
@@ -160,8 +162,10 @@ def test_mesh_obj_header_records_the_checks(prediction):
     assert res["mesh"]["self_intersecting_faces"] == 0
 
 
-@pytest.mark.parametrize(("units", "scale", "unit_entity"), [("in", None, "'INCH'"), ("m", None, ".METRE."),
-                                                              ("cm", 2.0, ".CENTI."), ("mm", 1.0, ".MILLI.")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("units", "scale", "unit_entity"),
+    [("in", None, "'INCH'"), ("m", None, ".METRE."), ("cm", 2.0, ".CENTI."), ("mm", 1.0, ".MILLI.")],
+)
 def test_units_and_scale_reach_both_cad_files(prediction, tmp_path, units, scale, unit_entity):
     from train.export.bicubic import coons_to_bezier
     from train.export.iges import write_iges
@@ -176,7 +180,11 @@ def test_units_and_scale_reach_both_cad_files(prediction, tmp_path, units, scale
     for name in ("p.stp", "p.igs"):
         box = exact_bbox(read_cad(tmp_path / name))
         assert np.abs(box - want).max() <= STEP_BOX * np.ptp(want, axis=0).max(), name
-    unit_lines = [line for line in (tmp_path / "p.stp").read_text().splitlines() if "LENGTH_UNIT" in line or "CONVERSION_BASED_UNIT" in line]
+    unit_lines = [
+        line
+        for line in (tmp_path / "p.stp").read_text().splitlines()
+        if "LENGTH_UNIT" in line or "CONVERSION_BASED_UNIT" in line
+    ]
     assert any(unit_entity in line for line in unit_lines)
     # IGES numbers are in the declared unit: the project's reader sees model coords × factor
     raw = np.stack([s["control"] for s in read_iges(tmp_path / "p.igs")])

@@ -1,12 +1,11 @@
 import numpy as np
 import torch
+from test_export_bicubic import random_patches
 
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import eval_surface, iges_text, read_iges, write_iges
 from train.export.units import CadUnits
 from train.geometry.coons import coons_points
-
-from test_export_bicubic import random_patches
 
 
 def test_iges_roundtrip_matches_coons_patches(tmp_path):

@@ -18,9 +18,26 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LUIGI = [str(ROOT / ".venv" / "bin" / "luigi"), "--module", "workflows", "BuildDataset", "--local-scheduler"]
-SMALL = ["--categories", "mug", "--models-per-category", "4", "--batch-size", "2", "--views", "2",
-         "--variants", "1", "--image-size", "64", "--out-size", "64",
-         "--shard-settings", '{"max_samples_per_shard": 2}', "--log-level", "WARNING"]
+SMALL = [
+    "--categories",
+    "mug",
+    "--models-per-category",
+    "4",
+    "--batch-size",
+    "2",
+    "--views",
+    "2",
+    "--variants",
+    "1",
+    "--image-size",
+    "64",
+    "--out-size",
+    "64",
+    "--shard-settings",
+    '{"max_samples_per_shard": 2}',
+    "--log-level",
+    "WARNING",
+]
 
 # (where, glob of the path whose n-th atomic rename is interrupted, n)
 KILL_POINTS = [
@@ -39,8 +56,9 @@ def run_build(root: Path, kill_at: str | None = None, timeout: float = 300) -> i
         env["SKETCH_FAULT_KILL_AT"] = kill_at
     cmd = LUIGI + SMALL + ["--work-dir", str(root / "work"), "--dataset-dir", str(root / "ds")]
     # own session: the kill hook takes down this process group and nothing else
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, start_new_session=True, capture_output=True,
-                          text=True, timeout=timeout)
+    proc = subprocess.run(
+        cmd, cwd=ROOT, env=env, start_new_session=True, capture_output=True, text=True, timeout=timeout
+    )
     if proc.returncode not in (0, -signal.SIGKILL):
         raise AssertionError(f"build exited {proc.returncode}:\n{proc.stderr[-3000:]}")
     return proc.returncode
@@ -82,8 +100,9 @@ def reference(tmp_path_factory) -> dict[str, str]:
 
 @pytest.mark.slow  # each case: a killed build plus its restart (~20-40 s on 2 cores)
 @pytest.mark.parametrize("where,pattern,nth", KILL_POINTS, ids=[k[0] for k in KILL_POINTS])
-def test_killed_build_restarts_to_identical_output(reference, tmp_path: Path, where: str, pattern: str,
-                                                   nth: int) -> None:
+def test_killed_build_restarts_to_identical_output(
+    reference, tmp_path: Path, where: str, pattern: str, nth: int
+) -> None:
     assert run_build(tmp_path, f"{pattern}:{nth}") == -signal.SIGKILL
     left = temp_files(tmp_path)
     assert any(p.name.startswith(".") and Path(pattern).name in p.name for p in left), left

@@ -36,8 +36,10 @@ from workflows import BuildCategory
 def test_storage_errors_are_translated() -> None:
     full = storage_error("/data/x.npy", OSError(errno.ENOSPC, "No space left on device"))
     assert isinstance(full, StorageError) and full.errno == errno.ENOSPC
-    assert str(full).endswith("cannot write /data/x.npy: disk full (no space left on device); "
-                              "free space or point --work-dir/--dataset-dir elsewhere")
+    assert str(full).endswith(
+        "cannot write /data/x.npy: disk full (no space left on device); "
+        "free space or point --work-dir/--dataset-dir elsewhere"
+    )
     assert "read-only filesystem" in str(storage_error("/d/y", OSError(errno.EROFS, "ro")))
     assert "permission denied" in str(storage_error("/d/y", PermissionError(errno.EACCES, "denied")))
     other = OSError(errno.EIO, "I/O error")
@@ -83,13 +85,15 @@ def test_permission_denied_names_file() -> None:
         folder.chmod(0o755)  # root's folder: others may enter but not write
         target = folder / "cat" / "record.json"
         (folder / "cat").mkdir()
+
         def write() -> str:
             write_bytes(target, b"{}")
             return "written"
 
         msg = call_as((nobody.pw_uid, nobody.pw_gid), write)
         assert msg.startswith("StorageError: ") and msg.endswith(
-            f"cannot write {target}: permission denied; make the folder writable by this user"), msg
+            f"cannot write {target}: permission denied; make the folder writable by this user"
+        ), msg
         assert not target.exists()
     finally:
         subprocess.run(["rm", "-rf", str(folder)], check=True)
@@ -164,8 +168,17 @@ def test_build_storage_errors_fail_the_task_not_the_model(tmp_path: Path, monkey
     """Luigi end to end, with the SKETCH_FAULT_ERRNO_AT hook (no root needed): a full disk in
     render, then a read-only augment output, fail the build without recording a bad model; the
     re-run once storage is fixed builds every model."""
-    params = dict(category="mug", models_per_category=2, batch_size=2, views=1, variants=1, image_size=64,
-                  out_size=64, work_dir=str(tmp_path / "work"), dataset_dir=str(tmp_path / "ds"))
+    params = dict(
+        category="mug",
+        models_per_category=2,
+        batch_size=2,
+        views=1,
+        variants=1,
+        image_size=64,
+        out_size=64,
+        work_dir=str(tmp_path / "work"),
+        dataset_dir=str(tmp_path / "ds"),
+    )
     work = tmp_path / "work"
 
     def build(fault: str | None) -> bool:

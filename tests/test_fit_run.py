@@ -13,8 +13,8 @@ from pipeline.core.settings_io import SettingError
 from train.data import DataSettings, make_loader
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
-from train.templates import load_template
 from train.losses.weights import LossWeights
+from train.templates import load_template
 
 
 @pytest.fixture(scope="module")
@@ -23,9 +23,21 @@ def shards(tmp_path_factory):
 
 
 def settings(shards, out, steps, **kw):
-    base = dict(dataset=str(shards), category="knife", template="sphere24", out=str(out), steps=steps,
-                batch_size=2, workers=0, n_points=300, image_size=32, max_views=2, log_every=1,
-                checkpoint_every=100, weights=LossWeights(collision=0.0))  # fmt: skip
+    base = dict(
+        dataset=str(shards),
+        category="knife",
+        template="sphere24",
+        out=str(out),
+        steps=steps,
+        batch_size=2,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=2,
+        log_every=1,
+        checkpoint_every=100,
+        weights=LossWeights(collision=0.0),
+    )
     return FitSettings(**{**base, **kw})
 
 
@@ -98,9 +110,13 @@ def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):
     fit(settings(shards, out, 3, lr=1e-2), progress=False)
     model = load_run(out / "checkpoint.pt").model
     data = DataSettings(eval_views=1, n_points=300, image_size=32)
-    outs = torch.cat([model(b["images"], b["view_mask"]) for b in make_loader(shards, "knife", "train", data, 0, 3, train=False)])
+    outs = torch.cat(
+        [model(b["images"], b["view_mask"]) for b in make_loader(shards, "knife", "train", data, 0, 3, train=False)]
+    )
     assert len(outs) == 8 and (outs.std(0).max() > 0)  # the network does respond to the sketches
-    torch.testing.assert_close(mean_output(model, make_loader(shards, "knife", "train", data, 0, 3, train=False)), outs.mean(0))
+    torch.testing.assert_close(
+        mean_output(model, make_loader(shards, "knife", "train", data, 0, 3, train=False)), outs.mean(0)
+    )
 
 
 @pytest.mark.slow
@@ -165,8 +181,9 @@ def test_gradient_clipping_bounds_the_update_and_logs_the_norm(shards, tmp_path)
         net = TrainingNet(SketchToPatches(template.initial_params(), encoder_width=16))
         before = torch.cat([p.detach().flatten().clone() for p in net.parameters()])
         sgd = torch.optim.SGD(net.parameters(), lr=1.0)  # the step is the (clipped) gradient itself
-        _, terms = train_step(net, sgd, objective, batch, st, LossWeights(collision=0.0), torch.device("cpu"),
-                              clip_grad=clip)
+        _, terms = train_step(
+            net, sgd, objective, batch, st, LossWeights(collision=0.0), torch.device("cpu"), clip_grad=clip
+        )
         after = torch.cat([p.detach().flatten() for p in net.parameters()])
         return float(terms["grad_norm"]), float((after - before).norm())
 

@@ -19,9 +19,9 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from bad_inputs import BAD_PARAMETERS, CLASHES  # noqa: E402
 
-from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from workflows.console import Progress  # noqa: E402
 from workflows.make_dataset import main as make_dataset  # noqa: E402
 from workflows.steps import RUNS, read_runs  # noqa: E402
@@ -42,8 +42,9 @@ def run_build(src: Path, root: Path, **kw) -> bool:
 
 
 def settings(src: Path, root: Path) -> BuildSettings:
-    return BuildSettings(source=str(src), work_dir=root / "work", dataset_dir=root / "ds",
-                         **{k: v for k, v in TINY.items()})
+    return BuildSettings(
+        source=str(src), work_dir=root / "work", dataset_dir=root / "ds", **{k: v for k, v in TINY.items()}
+    )
 
 
 def tree(ds: Path) -> dict[str, bytes]:
@@ -51,6 +52,7 @@ def tree(ds: Path) -> dict[str, bytes]:
 
 
 # ---------------------------------------------------------------- parameters (no Blender)
+
 
 @pytest.mark.parametrize("params, words", BAD_PARAMETERS)
 def test_bad_parameters_stop_with_one_line_before_anything_runs(tmp_path: Path, params: dict, words: str) -> None:
@@ -82,9 +84,27 @@ def test_files_that_would_be_one_model_are_named(tmp_path: Path, names: tuple[st
 def test_luigi_command_and_make_dataset_print_one_line(tmp_path: Path, capsys) -> None:
     src = tmp_path / "src"
     box(src / "mug" / "a.obj", (1, 1, 1))
-    r = subprocess.run([sys.executable, "-m", "luigi", "--module", "workflows", "BuildDataset", "--local-scheduler",
-                        "--source", str(src), "--categories", "mgu", "--work-dir", str(tmp_path / "w")],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "luigi",
+            "--module",
+            "workflows",
+            "BuildDataset",
+            "--local-scheduler",
+            "--source",
+            str(src),
+            "--categories",
+            "mgu",
+            "--work-dir",
+            str(tmp_path / "w"),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     out = (r.stdout + r.stderr).strip()
     assert r.returncode != 0 and "Traceback" not in out, out
     assert out.splitlines()[-1] == f"error: --categories: unknown 'mgu' for source '{src}'; it has: mug"
@@ -106,9 +126,23 @@ def test_failures_are_loud_on_the_luigi_command(tmp_path: Path) -> None:
     src.mkdir(parents=True)
     (src / "cut.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
     (src / "empty.obj").write_bytes(b"")
-    cmd = [sys.executable, "-m", "luigi", "--module", "workflows", "BuildDataset", "--local-scheduler",
-           "--source", str(tmp_path / "src"), "--models-per-category", "0", "--work-dir", str(tmp_path / "work"),
-           "--dataset-dir", str(tmp_path / "ds")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "luigi",
+        "--module",
+        "workflows",
+        "BuildDataset",
+        "--local-scheduler",
+        "--source",
+        str(tmp_path / "src"),
+        "--models-per-category",
+        "0",
+        "--work-dir",
+        str(tmp_path / "work"),
+        "--dataset-dir",
+        str(tmp_path / "ds"),
+    ]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     out = r.stdout + r.stderr
     assert r.returncode == 30, out  # a category with no model built fails the build
@@ -124,6 +158,7 @@ def test_failures_are_loud_on_the_luigi_command(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- changes and repairs (Blender)
+
 
 @pytest.fixture(scope="module")
 def changed(tmp_path_factory) -> dict:

@@ -14,7 +14,6 @@ import torch
 import trimesh
 import webdataset as wds
 
-from workflows.build_settings import BuildSettings
 from pipeline.core.records import ModelRef
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS, SAMPLE_PARTS_FILE
 from pipeline.dataset.shards import list_shards
@@ -27,12 +26,20 @@ from train.objective import Objective
 from train.templates import load_template
 from train.templates.__main__ import main as templates_main
 from workflows import BuildDataset
+from workflows.build_settings import BuildSettings
 from workflows.validate import BuildParameterError, check_settings
 
 # model id -> has a back; "c" lacks the optional part
 CHAIRS = {"a": (0.8, True), "b": (1.0, True), "c": (1.1, False), "d": (1.3, True)}
-TINY = dict(models_per_category=0, views=1, variants=1, image_size=64, out_size=64, batch_size=4,
-            render_settings='{"backend": "embree"}')
+TINY = dict(
+    models_per_category=0,
+    views=1,
+    variants=1,
+    image_size=64,
+    out_size=64,
+    batch_size=4,
+    render_settings='{"backend": "embree"}',
+)
 FAST = PrepareSettings(resolution=1000, n_samples=8000)
 
 
@@ -78,6 +85,7 @@ def _map(folder: Path, text: str, name: str = "map.yaml") -> Path:
 
 # ---------------------------------------------------------------- one reader, no copies
 
+
 def test_templates_read_parts_with_the_pipelines_reader() -> None:
     from train.templates import mesh_boxes
 
@@ -95,14 +103,22 @@ def test_shapenet_groups_are_materials_its_points_files_are_parts(tmp_path: Path
     (labels / "points").mkdir(parents=True)
     (labels / "points_label").mkdir()
     (labels / "points" / "1a2b.pts").write_text("".join(f"{x} {y} {z}\n" for x, y, z in pts))
-    (labels / "points_label" / "1a2b.seg").write_text("".join(f"{1 + int(f >= 12)}\n" for f in face))  # seat: faces 0-11
-    found = segmentation.named_parts(model, whole.vertices, whole.faces, "1a2b-0123456789ab",
-                                     PartLabelSettings(labels_dir=str(labels), part_map=(("seg1", "seat"),)))
+    (labels / "points_label" / "1a2b.seg").write_text(
+        "".join(f"{1 + int(f >= 12)}\n" for f in face)
+    )  # seat: faces 0-11
+    found = segmentation.named_parts(
+        model,
+        whole.vertices,
+        whole.faces,
+        "1a2b-0123456789ab",
+        PartLabelSettings(labels_dir=str(labels), part_map=(("seg1", "seat"),)),
+    )
     assert found is not None and found[1] == "points file"
     assert sorted({p.name for p in found[0]}) == ["seat", "seg2"]  # mapped; an unmapped id keeps its digits
 
 
 # ---------------------------------------------------------------- prepare (no renderer)
+
 
 def test_prepare_labels_samples_by_mapped_group_names(tmp_path: Path) -> None:
     src = tmp_path / "x.obj"
@@ -112,7 +128,10 @@ def test_prepare_labels_samples_by_mapped_group_names(tmp_path: Path) -> None:
     rec = prepare_model(ModelRef("chair", "x", src, "folder"), tmp_path / "out", FAST, parts)
     assert rec["part_labels"] == {"origin": "obj groups", "names": ["leg", "seat"]}
     assert {p["label"]: p["family"] for p in rec["parts"]} == {
-        "Sitz": "seat", **{f"Bein.{i:03d}": "leg" for i in range(4)}, "Screw": None}
+        "Sitz": "seat",
+        **{f"Bein.{i:03d}": "leg" for i in range(4)},
+        "Screw": None,
+    }
     ids = np.load(tmp_path / "out" / SAMPLE_PARTS_FILE)
     y = np.load(tmp_path / "out" / "samples.npy")[:, 1]
     assert ids.dtype == np.uint8 and len(ids) == len(y) == FAST.n_samples
@@ -120,11 +139,14 @@ def test_prepare_labels_samples_by_mapped_group_names(tmp_path: Path) -> None:
     assert leg.sum() > 100 and seat.sum() > 100
     assert y[leg].mean() < y[seat].mean()  # legs hang below the seat
     # without segmentation: no labels at all (every template part then counts as present)
-    rec = prepare_model(ModelRef("chair", "x", src, "folder"), tmp_path / "off", FAST, PartLabelSettings(segmentation=False))
+    rec = prepare_model(
+        ModelRef("chair", "x", src, "folder"), tmp_path / "off", FAST, PartLabelSettings(segmentation=False)
+    )
     assert "parts" not in rec and not (tmp_path / "off" / SAMPLE_PARTS_FILE).exists()
 
 
 # ---------------------------------------------------------------- settings and keys
+
 
 def test_part_map_and_choice_key_the_prepare_stage(tmp_path: Path) -> None:
     src = chair_source(tmp_path / "src")
@@ -147,12 +169,15 @@ def test_part_map_and_choice_key_the_prepare_stage(tmp_path: Path) -> None:
     assert "parts" not in BuildSettings().manifest_settings()
 
 
-@pytest.mark.parametrize("kw, words", [
-    ({"part_labels": "groups"}, "--part-labels: must be one of segmentation, none"),
-    ({"part_map": "{bad"}, "--part-map:"),
-    ({"part_map": "list"}, "--part-map: "),
-    ({"labels_dir": "nowhere"}, "--labels-dir: 'nowhere' is not a folder"),
-])
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"part_labels": "groups"}, "--part-labels: must be one of segmentation, none"),
+        ({"part_map": "{bad"}, "--part-map:"),
+        ({"part_map": "list"}, "--part-map: "),
+        ({"labels_dir": "nowhere"}, "--labels-dir: 'nowhere' is not a folder"),
+    ],
+)
 def test_bad_part_settings_name_their_flag(tmp_path: Path, kw: dict, words: str, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     _map(tmp_path, "[seat, leg]\n", "list")  # a list, not a mapping
@@ -165,12 +190,17 @@ def test_bad_part_settings_name_their_flag(tmp_path: Path, kw: dict, words: str,
 
 # ---------------------------------------------------------------- build -> shards -> template -> loss
 
+
 @pytest.fixture(scope="module")
 def chair_build(tmp_path_factory) -> tuple[Path, dict]:
     root = tmp_path_factory.mktemp("chairs")
     src = chair_source(root / "src")
-    ok = luigi.build([BuildDataset(source=str(src), work_dir=str(root / "work"), dataset_dir=str(root / "ds"), **TINY)],
-                     local_scheduler=True, workers=1, log_level="WARNING")
+    ok = luigi.build(
+        [BuildDataset(source=str(src), work_dir=str(root / "work"), dataset_dir=str(root / "ds"), **TINY)],
+        local_scheduler=True,
+        workers=1,
+        log_level="WARNING",
+    )
     assert ok
     urls = [str(p) for p in list_shards(root / "ds" / "chair")]
     settings = DataSettings(eval_views=1, n_points=4000, image_size=64)
@@ -186,7 +216,9 @@ def test_folder_shards_carry_present_parts_and_point_labels(chair_build) -> None
         has_back = CHAIRS[meta["model_id"].split("-")[0]][1]
         assert meta[PRESENT_PARTS] == (["back", "leg", "seat"] if has_back else ["leg", "seat"])
         assert meta[POINT_PART_NAMES] == meta[PRESENT_PARTS]
-        assert sorted(meta["part_labels"]) == sorted(["Seat", *(f"Leg.{i:03d}" for i in range(4))] + ["Back"] * has_back)
+        assert sorted(meta["part_labels"]) == sorted(
+            ["Seat", *(f"Leg.{i:03d}" for i in range(4))] + ["Back"] * has_back
+        )
         labels, y = batch["point_parts"][b], batch["points"][b, :, 1]
         names = meta[POINT_PART_NAMES]
         assert len(torch.unique(labels)) == len(names)  # every present part owns points
@@ -196,8 +228,23 @@ def test_folder_shards_carry_present_parts_and_point_labels(chair_build) -> None
 
 def test_template_from_the_folder_turns_the_missing_part_off(chair_build, tmp_path: Path) -> None:
     src, batch = chair_build
-    assert templates_main(["build", "--source", str(src), "--category", "chair", "--out", str(tmp_path),
-                           "--no-png", "--part-group", "legs=leg"]) == 0
+    assert (
+        templates_main(
+            [
+                "build",
+                "--source",
+                str(src),
+                "--category",
+                "chair",
+                "--out",
+                str(tmp_path),
+                "--no-png",
+                "--part-group",
+                "legs=leg",
+            ]
+        )
+        == 0
+    )
     tpl = load_template(tmp_path / "chair.json")
     assert tpl.part_names == ["back"]
     shard_names = set().union(*(m[POINT_PART_NAMES] for m in batch["meta"]))

@@ -44,7 +44,9 @@ def test_bezier_matches_paper_formula_and_derivative_matches_finite_difference()
     ctrl = torch.randn(5, 4, 3, generator=gen, dtype=torch.float64)
     t = torch.linspace(0, 1, 11, dtype=torch.float64)
     for i in range(5):
-        np.testing.assert_allclose(bezier_eval(ctrl[i], t).numpy(), numpy_bezier(ctrl[i].numpy(), t.numpy()), atol=1e-12)
+        np.testing.assert_allclose(
+            bezier_eval(ctrl[i], t).numpy(), numpy_bezier(ctrl[i].numpy(), t.numpy()), atol=1e-12
+        )
     h = 1e-6
     fd = (bezier_eval(ctrl, t + h) - bezier_eval(ctrl, t - h)) / (2 * h)
     torch.testing.assert_close(bezier_derivative(ctrl, t), fd, atol=1e-7, rtol=1e-7)
@@ -82,8 +84,12 @@ def test_partials_match_finite_differences_and_normals_are_unit():
     ds = torch.tensor([h, 0.0], dtype=torch.float64)
     dt = torch.tensor([0.0, h], dtype=torch.float64)
     p_s, p_t = coons_partials(p, st)
-    torch.testing.assert_close(p_s, (coons_points(p, st + ds) - coons_points(p, st - ds)) / (2 * h), atol=1e-7, rtol=1e-6)
-    torch.testing.assert_close(p_t, (coons_points(p, st + dt) - coons_points(p, st - dt)) / (2 * h), atol=1e-7, rtol=1e-6)
+    torch.testing.assert_close(
+        p_s, (coons_points(p, st + ds) - coons_points(p, st - ds)) / (2 * h), atol=1e-7, rtol=1e-6
+    )
+    torch.testing.assert_close(
+        p_t, (coons_points(p, st + dt) - coons_points(p, st - dt)) / (2 * h), atol=1e-7, rtol=1e-6
+    )
     n = coons_normals(p, st)
     torch.testing.assert_close(n.norm(dim=-1), torch.ones(3, 20, dtype=torch.float64))
     torch.testing.assert_close(coons_jacobian(p, st), torch.linalg.cross(p_s, p_t, dim=-1).norm(dim=-1))
@@ -95,7 +101,9 @@ def test_jacobian_area_matches_fine_triangulation():
     jac_area = coons_jacobian(p, grid_params(k, include_boundary=False, dtype=torch.float64)).mean(-1)
     verts, faces = triangulate_patches(p, 201)
     tri = verts[:, faces]
-    tri_area = 0.5 * torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1).norm(dim=-1).sum(-1)
+    tri_area = 0.5 * torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1).norm(
+        dim=-1
+    ).sum(-1)
     torch.testing.assert_close(jac_area, tri_area, rtol=1e-4, atol=0)
 
 
@@ -147,7 +155,10 @@ def test_matrix_evaluation_equals_the_coons_formula_term_by_term():
 
     gen = torch.Generator().manual_seed(7)
     p = random_patches(gen, 4)[None].repeat(2, 1, 1, 1, 1)
-    for st in (torch.rand(9, 2, generator=gen, dtype=torch.float64), torch.rand(4, 5, 2, generator=gen, dtype=torch.float64)):
+    for st in (
+        torch.rand(9, 2, generator=gen, dtype=torch.float64),
+        torch.rand(4, 5, 2, generator=gen, dtype=torch.float64),
+    ):
         ev = evaluate_patches(p, st)
         torch.testing.assert_close(ev.points, _points_formula(p, st), rtol=1e-12, atol=1e-12)
         p_s, p_t = _partials_formula(p, st)

@@ -14,9 +14,8 @@ from fixtures_shards import box_sketch, camera  # noqa: E402
 from test_export_quadmesh import box_with_junctions, line  # noqa: E402
 
 from train.cli import main
-from train.export.quadmesh import quad_mesh
+from train.export.quadmesh import patch_intersections, quad_mesh
 from train.fit import FitSettings, save_checkpoint
-from train.export.quadmesh import patch_intersections
 from train.geometry.intersections import candidate_pairs, mesh_intersections
 from train.model import SketchToPatches
 from train.templates import load_template
@@ -73,8 +72,20 @@ def test_predict_flags_an_intersecting_prediction(tmp_path):
     cv2.imwrite(str(tmp_path / "s.png"), box_sketch(np.array([0.6, 0.6, 0.5]), camera(30, 20, 32), 32, 1))
     printed, said = io.StringIO(), io.StringIO()
     with redirect_stdout(printed), redirect_stderr(said):
-        main(["predict", "--checkpoint", str(tmp_path / "ck.pt"), "--sketch", str(tmp_path / "s.png"),
-              "--out", str(tmp_path / "out"), "--units", "in", "--json"])  # fmt: skip
+        main(
+            [
+                "predict",
+                "--checkpoint",
+                str(tmp_path / "ck.pt"),
+                "--sketch",
+                str(tmp_path / "s.png"),
+                "--out",
+                str(tmp_path / "out"),
+                "--units",
+                "in",
+                "--json",
+            ]
+        )
     last = said.getvalue().strip().splitlines()[-1]
     assert last.startswith("NOT CLEAN:") and "the CAD kernel finds" in last and "patch pairs" in last
     res = json.loads(printed.getvalue())  # with --json, stdout is JSON only

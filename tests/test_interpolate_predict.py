@@ -68,7 +68,9 @@ def test_interpolation_endpoints_equal_the_inputs(checkpoint, tmp_path):
     with torch.no_grad():
         pa, pb = (model(load_sketches([s], 32).tensor)[0].numpy() for s in (a, b))
     for space in ("patch", "latent"):
-        assert np.allclose(res["params"][space][0], pa, atol=1e-6) and np.allclose(res["params"][space][-1], pb, atol=1e-6)
+        assert np.allclose(res["params"][space][0], pa, atol=1e-6) and np.allclose(
+            res["params"][space][-1], pb, atol=1e-6
+        )
     assert sorted(p.name for p in tmp_path.glob("latent_*.obj")) == ["latent_00.obj", "latent_01.obj", "latent_02.obj"]
 
 
@@ -86,7 +88,9 @@ def test_predict_with_a_part_switched_off_exports_a_closed_mesh(tmp_path, guard)
     res = predict(tmp_path / "checkpoint.pt", [sketch], tmp_path / "out", {"guard": guard})
     assert res["mesh"]["boundary_edges"] == 0 and res["mesh"]["watertight"]
     assert res["patches"] == len(t.active_patches({"guard": guard}))
-    assert (res["patches"] < t.num_patches - len(t.closing_patches["guard"]) - len(t.closing_patches["pommel"])) == (not guard)
+    assert (res["patches"] < t.num_patches - len(t.closing_patches["guard"]) - len(t.closing_patches["pommel"])) == (
+        not guard
+    )
 
 
 def test_interpolation_frames_share_one_mesh_and_strip_shows_verdicts(checkpoint, tmp_path):

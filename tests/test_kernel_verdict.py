@@ -13,9 +13,9 @@ import torch
 
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict, step_file_verdict
+from train.export.quadmesh import patch_intersections
 from train.export.step import write_step
 from train.export.units import CadUnits
-from train.export.quadmesh import patch_intersections
 from train.templates import load_template
 
 SIGMAS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08)

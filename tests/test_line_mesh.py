@@ -8,8 +8,8 @@ import trimesh
 from PIL import Image, ImageDraw
 
 from pipeline.prepare.line_mesh import border_edges, line_mesh, sharp_edges
-from render.line_fidelity import score_view
 from render.cameras import make_view
+from render.line_fidelity import score_view
 from render.settings import RenderSettings
 
 
@@ -45,8 +45,10 @@ def test_long_slivers_split_without_new_creases_and_big_meshes_decimated_keeping
     assert m.edges_unique_length.max() <= 0.2 + 1e-9 and len(m.faces) <= 20000
     assert m.is_watertight and len(border_edges(m)) == 0
     rims = sharp_edges(m, 45.0)
-    assert np.isclose(np.linalg.norm(m.vertices[rims[:, 0]] - m.vertices[rims[:, 1]], axis=1).sum(),
-                      2 * 48 * 2 * 0.3 * np.sin(np.pi / 48))
+    assert np.isclose(
+        np.linalg.norm(m.vertices[rims[:, 0]] - m.vertices[rims[:, 1]], axis=1).sum(),
+        2 * 48 * 2 * 0.3 * np.sin(np.pi / 48),
+    )
     # A dense box: decimated to the budget, still a box with sharp corners.
     dense = trimesh.creation.box((1.0, 1.0, 1.0)).subdivide_to_size(0.05)
     small = line_mesh(dense.vertices, dense.faces, np.zeros(3), 1.0, max_faces=1000)

@@ -5,6 +5,8 @@ import pytest
 import torch
 
 from train.geometry import evaluate_patches, grid_params, patch_from_corners, sample_surface_uniform, uniform_params
+from train.geometry.intersections import count_intersecting_pairs
+from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
 from train.losses import (
     LossWeights,
     chamfer_loss,
@@ -16,8 +18,6 @@ from train.losses import (
     template_normal_loss,
     total_loss,
 )
-from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
-from train.geometry.intersections import count_intersecting_pairs
 from train.nn_search import nearest_distances
 from train.templates import sphere24, sphere54
 from train.templates.template import Curve, FreePoint, Patch, Template
@@ -59,7 +59,8 @@ def test_chamfer_is_near_zero_on_itself_and_grows_with_offset():
 def test_chamfer_weights_patch_side_by_jacobian():
     # one large and one small flat patch, target far away: patch side = area-weighted mean height
     corners = torch.tensor(
-        [[[0, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1]], [[5, 0, 3], [6, 0, 3], [6, 1, 3], [5, 1, 3]]], dtype=torch.float64
+        [[[0, 0, 1], [2, 0, 1], [2, 2, 1], [0, 2, 1]], [[5, 0, 3], [6, 0, 3], [6, 1, 3], [5, 1, 3]]],
+        dtype=torch.float64,
     )
     p = patch_from_corners(corners)[None]
     ev = evaluate_patches(p, grid_params(5, dtype=torch.float64))
@@ -67,7 +68,9 @@ def test_chamfer_weights_patch_side_by_jacobian():
     m = match_points(ev.points, target)
     patch_side = (chamfer_loss(ev.points, ev.jacobian, target, matches=m) - 0).item()
     d = torch.cdist(ev.points.reshape(1, -1, 3), target).min(-1).values.reshape(2, -1)
-    expected = (4 * d[0].mean() + 1 * d[1].mean()) / 5 + torch.cdist(target, ev.points.reshape(1, -1, 3)).min(-1).values.mean()
+    expected = (4 * d[0].mean() + 1 * d[1].mean()) / 5 + torch.cdist(target, ev.points.reshape(1, -1, 3)).min(
+        -1
+    ).values.mean()
     assert patch_side == pytest.approx(expected.item(), rel=1e-9)
 
 
@@ -97,11 +100,15 @@ def test_normal_alignment_zero_for_matching_and_eight_for_flipped():
 
 
 def test_flatness_zero_for_planar_affine_patch_and_positive_for_sphere():
-    flat = patch_from_corners(torch.tensor([[0, 0, 0], [2, 0, 1], [2, 1, 1], [0, 1, 0]], dtype=torch.float64))[None, None]
+    flat = patch_from_corners(torch.tensor([[0, 0, 0], [2, 0, 1], [2, 1, 1], [0, 1, 0]], dtype=torch.float64))[
+        None, None
+    ]
     st = grid_params(6, dtype=torch.float64)
     ev = evaluate_patches(flat, st)
     assert flatness_loss(ev.points, st, ev.jacobian).item() < 1e-20
-    twisted = patch_from_corners(torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 1], [0, 1, 0]], dtype=torch.float64))[None, None]
+    twisted = patch_from_corners(torch.tensor([[0, 0, 0], [1, 0, 0], [1, 1, 1], [0, 1, 0]], dtype=torch.float64))[
+        None, None
+    ]
     ev = evaluate_patches(twisted, st)
     # residual of a bilinear z = s·t after the best affine fit, independently with numpy lstsq
     s, t_ = st[:, 0].numpy(), st[:, 1].numpy()
@@ -185,7 +192,12 @@ def test_collision_zero_for_patches_that_only_share_an_edge():
     assert collision_loss(patches, pairs).item() == 0.0
     # flat continuation (180 degrees) touches along the same edge: also 0
     t2 = _two_patch_template([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (-1, 0, 0), (-1, 1, 0)])
-    assert collision_loss(t2.patches_from_params(t2.initial_params(torch.float64)[None]), collision_pairs(t2, grid=8)).item() == 0.0
+    assert (
+        collision_loss(
+            t2.patches_from_params(t2.initial_params(torch.float64)[None]), collision_pairs(t2, grid=8)
+        ).item()
+        == 0.0
+    )
 
 
 def _two_patch_template(pts) -> Template:
@@ -208,7 +220,9 @@ def _two_patch_template(pts) -> Template:
 def test_total_loss_reaches_every_parameter_and_ablation_switches_terms_off():
     t = sphere24()
     prm = t.initial_params(torch.float64)[None].repeat(2, 1)
-    prm = (prm + 0.01 * torch.randn(prm.shape, generator=torch.Generator().manual_seed(5), dtype=torch.float64)).requires_grad_(True)
+    prm = (
+        prm + 0.01 * torch.randn(prm.shape, generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    ).requires_grad_(True)
     target, normals = sample_surface_uniform(sphere_patches(t) * 1.1, 3000, torch.Generator().manual_seed(6))
     target, normals = target.repeat(2, 1, 1), normals.repeat(2, 1, 1)
     st = uniform_params(t.num_patches, 64, torch.Generator().manual_seed(7), dtype=torch.float64)
@@ -260,7 +274,7 @@ def test_nearest_search_on_cuda_matches_cpu():
 def test_regularizer_gradcheck_float64():
     gen = torch.Generator().manual_seed(11)
     corners = torch.tensor([[[0, 0, 0], [1, 0, 0.3], [1, 1, 0], [0, 1, 0.2]]], dtype=torch.float64)
-    p = (patch_from_corners(corners)[None] + 0.05 * torch.randn(1, 1, 4, 4, 3, generator=gen, dtype=torch.float64))
+    p = patch_from_corners(corners)[None] + 0.05 * torch.randn(1, 1, 4, 4, 3, generator=gen, dtype=torch.float64)
     for k in range(4):  # keep the loop of curves closed
         p[:, :, (k + 1) % 4, 0] = p[:, :, k, 3]
     p.requires_grad_(True)
@@ -272,12 +286,14 @@ def test_regularizer_gradcheck_float64():
     def f(x):
         ev = evaluate_patches(x, st)
         m = match_points(ev.points, target)
-        return torch.stack([
-            flatness_loss(ev.points, st, ev.jacobian),
-            template_normal_loss(ev.normals, tn, ev.jacobian),
-            normal_alignment_loss(ev.normals, ev.jacobian, target_n, m),
-            symmetry_loss(x.reshape(1, -1, 3), torch.tensor([[0, 5], [3, 3]]), plane_x=0.1),
-        ])
+        return torch.stack(
+            [
+                flatness_loss(ev.points, st, ev.jacobian),
+                template_normal_loss(ev.normals, tn, ev.jacobian),
+                normal_alignment_loss(ev.normals, ev.jacobian, target_n, m),
+                symmetry_loss(x.reshape(1, -1, 3), torch.tensor([[0, 5], [3, 3]]), plane_x=0.1),
+            ]
+        )
 
     assert torch.autograd.gradcheck(f, (p,))
 
@@ -325,7 +341,10 @@ def test_normal_aware_matching_keeps_partners_on_the_facing_side_of_a_thin_wall(
     assert torch.isfinite(chamfer_loss(pts, jac, target, matches=aware)).all()
     # the aware normal term sees agreeing normals; the plain one pairs opposite ones (‖n − n'‖² = 4)
     flat = pn.reshape(1, 1, -1, 3)
-    assert normal_alignment_loss(flat, jac, normals, aware).item() < normal_alignment_loss(flat, jac, normals, plain).item()
+    assert (
+        normal_alignment_loss(flat, jac, normals, aware).item()
+        < normal_alignment_loss(flat, jac, normals, plain).item()
+    )
     with pytest.raises(ValueError):
         match_points(pts, target, normal_weight=0.1)
 

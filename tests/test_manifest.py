@@ -4,22 +4,36 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from test_shards import make_model_dirs
+
 from pipeline.dataset.manifest import category_fragment, content_checksum, read_manifest, write_fragment, write_manifest
 from pipeline.dataset.shards import ShardSettings, write_category_shards
-from test_shards import make_model_dirs
 
 
 def build(root: Path, ds: Path, category: str, n: int, settings: dict, failed: list[dict] | None = None) -> dict:
     models = [make_model_dirs(root, category, f"{i:05d}") for i in range(n)]
-    res = write_category_shards(category, models, ds / category, ShardSettings(max_samples_per_shard=2), 0, "h",
-                                before_cleanup=lambda r: write_fragment(
-                                    ds / category, category_fragment(category, r, settings, "hash-" + str(sorted(settings.items())), n + len(failed or []), failed or [])))
+    res = write_category_shards(
+        category,
+        models,
+        ds / category,
+        ShardSettings(max_samples_per_shard=2),
+        0,
+        "h",
+        before_cleanup=lambda r: write_fragment(
+            ds / category,
+            category_fragment(
+                category, r, settings, "hash-" + str(sorted(settings.items())), n + len(failed or []), failed or []
+            ),
+        ),
+    )
     return res
 
 
 def test_manifest_counts_failures_and_checksum(tmp_path: Path) -> None:
     ds = tmp_path / "ds"
-    failed = [{"model_id": "00099", "stage": "render", "path": "prepare/mug/00099/mesh.ply", "reason": "blender crashed"}]
+    failed = [
+        {"model_id": "00099", "stage": "render", "path": "prepare/mug/00099/mesh.ply", "reason": "blender crashed"}
+    ]
     build(tmp_path / "w", ds, "mug", 5, {"views": 2}, failed)
     build(tmp_path / "w", ds, "car", 3, {"views": 2})
     m = write_manifest(ds)

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from train.geometry import patch_from_corners, sample_surface_uniform
-from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
 from train.geometry.intersections import count_intersecting_pairs, triangles_intersect
+from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
 from train.metrics import chamfer_l2_x1000, chamfer_loss_style, fscore, normal_consistency
 from train.templates import sphere24, sphere54
 
@@ -34,7 +34,9 @@ def test_fscore_and_normal_consistency_on_known_offsets():
     n = torch.nn.functional.normalize(torch.randn(1, 300, 3, generator=gen, dtype=torch.float64), dim=-1)
     assert normal_consistency(a, n, a, n).item() == pytest.approx(1.0)
     assert normal_consistency(a, n, a, -n).item() == pytest.approx(1.0)  # unoriented
-    perp = torch.linalg.cross(n, torch.nn.functional.normalize(torch.randn(1, 300, 3, generator=gen, dtype=torch.float64), dim=-1), dim=-1)
+    perp = torch.linalg.cross(
+        n, torch.nn.functional.normalize(torch.randn(1, 300, 3, generator=gen, dtype=torch.float64), dim=-1), dim=-1
+    )
     assert normal_consistency(a, n, a, torch.nn.functional.normalize(perp, dim=-1)).item() < 1e-9
 
 

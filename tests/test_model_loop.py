@@ -19,12 +19,14 @@ CAT = "mug"
 
 
 def jobs(*ids: str) -> list[ModelJob]:
-    return [ModelJob(CAT, mid, Path(f"/src/{mid}.obj"), item=mid, failed_fields={"source": {"path": mid}})
-            for mid in ids]
+    return [
+        ModelJob(CAT, mid, Path(f"/src/{mid}.obj"), item=mid, failed_fields={"source": {"path": mid}}) for mid in ids
+    ]
 
 
 def make(behaviour: dict[str, BaseException], calls: list[str]):
     """A stage function: writes data.bin, then raises what ``behaviour`` names for that model."""
+
     def one(job: ModelJob, folder: Path) -> dict:
         calls.append(job.model_id)
         write_bytes(folder / "data.bin", job.model_id.encode())
@@ -32,6 +34,7 @@ def make(behaviour: dict[str, BaseException], calls: list[str]):
         if exc is not None:
             raise exc
         return {"category": job.category, "model_id": job.model_id, "n": len(calls)}
+
     return one
 
 
@@ -39,8 +42,14 @@ def test_bad_models_are_recorded_and_the_rest_go_on(tmp_path: Path) -> None:
     calls: list[str] = []
     progress: list[tuple[int, int, str]] = []
     bad = {"bad": ModelError("/src/bad.obj", "truncated: no end_header"), "bug": ValueError("odd input")}
-    recs = run_models("prepare", tmp_path, jobs("a", "bad", "bug", "b"), make(bad, calls),
-                      lambda d, t, m: progress.append((d, t, m)), error_prefix="x: ")
+    recs = run_models(
+        "prepare",
+        tmp_path,
+        jobs("a", "bad", "bug", "b"),
+        make(bad, calls),
+        lambda d, t, m: progress.append((d, t, m)),
+        error_prefix="x: ",
+    )
     assert calls == ["a", "bad", "bug", "b"]
     assert [r["status"] for r in recs] == ["ok", "failed", "failed", "ok"]
     # the record on disk is what the loop returned, written by the loop (ok: the stage's fields)
@@ -91,14 +100,20 @@ def test_policy_classification() -> None:
 def test_recorded_models_are_skipped(tmp_path: Path) -> None:
     write_ok(tmp_path / CAT / "a", category=CAT, model_id="a", n=99)
     (tmp_path / CAT / "b").mkdir(parents=True)
-    (tmp_path / CAT / "b" / "record.json").write_text(json.dumps({"status": "failed", "error": {
-        "path": "/src/b.obj", "reason": "old"}}))
+    (tmp_path / CAT / "b" / "record.json").write_text(
+        json.dumps({"status": "failed", "error": {"path": "/src/b.obj", "reason": "old"}})
+    )
     calls: list[str] = []
     started: list[tuple[int, str]] = []
     progress: list[tuple[int, int, str]] = []
-    recs = run_models("augment", tmp_path, jobs("a", "b", "c"), make({}, calls),
-                      lambda d, t, m: progress.append((d, t, m)),
-                      on_start=lambda i, job: started.append((i, job.model_id)))
+    recs = run_models(
+        "augment",
+        tmp_path,
+        jobs("a", "b", "c"),
+        make({}, calls),
+        lambda d, t, m: progress.append((d, t, m)),
+        on_start=lambda i, job: started.append((i, job.model_id)),
+    )
     assert calls == ["c"] and started == [(2, "c")]  # done models (ok or failed) are not redone
     assert recs[0]["n"] == 99 and recs[1]["error"]["reason"] == "old" and recs[2]["status"] == "ok"
     assert not (tmp_path / CAT / "a" / "data.bin").exists()

@@ -31,8 +31,10 @@ def surface(n: int, b: int = 2) -> np.ndarray:
 
 CLOUDS = {
     "uniform": lambda: (RNG.random((2, 700, 3)), RNG.random((2, 500, 3))),
-    "clustered": lambda: (RNG.normal(size=(2, 900, 3)) * 0.01 + RNG.integers(0, 4, (2, 900, 1)),
-                          RNG.normal(size=(2, 600, 3)) * 0.01 + RNG.integers(0, 4, (2, 600, 1))),
+    "clustered": lambda: (
+        RNG.normal(size=(2, 900, 3)) * 0.01 + RNG.integers(0, 4, (2, 900, 1)),
+        RNG.normal(size=(2, 600, 3)) * 0.01 + RNG.integers(0, 4, (2, 600, 1)),
+    ),
     "surface with noise": lambda: (surface(3000) + 0.02 * RNG.normal(size=(2, 3000, 3)), surface(2500)),
     "many queries, few references": lambda: (RNG.normal(size=(2, 4000, 3)), RNG.normal(size=(2, 7, 3))),
     "few queries, many references": lambda: (RNG.normal(size=(2, 3, 3)), RNG.normal(size=(2, 5000, 3))),
@@ -56,8 +58,10 @@ def test_grid_equals_kdtree(name: str) -> None:
 def test_coincident_reference_points_go_to_the_lowest_index() -> None:
     base = surface(400, b=1)
     r = np.concatenate([base, base[:, ::-1], base], 1)  # every point three times
-    for q in (base + 1e-3 * RNG.normal(size=base.shape),  # near: answered by the grid
-              RNG.random((1, 50, 3)) * 40 + 30):  # far: past the grid's budget, the k-d tree answers
+    for q in (
+        base + 1e-3 * RNG.normal(size=base.shape),  # near: answered by the grid
+        RNG.random((1, 50, 3)) * 40 + 30,
+    ):  # far: past the grid's budget, the k-d tree answers
         got = grid_nearest(q, r)
         np.testing.assert_array_equal(sq_dist(q, r, got), sq_dist(q, r, kdtree(q, r)))
         # base[i] lies at i, 799 - i and 800 + i: the answer is always the first copy
@@ -112,8 +116,11 @@ def test_training_loss_terms_identical_with_kdtree_matching(template: str, match
     pts = torch.randn(2, 1500, 3, generator=gen)
     pts = 0.6 * pts / pts.norm(dim=-1, keepdim=True)
     names = [*obj.group_of_label, "body"]  # car: wheels in one group, the rest in the other
-    batch = {"points": torch.cat([pts, pts / 0.6], -1), "meta": [{"point_part_names": names}] * 2,
-             "point_parts": torch.randint(0, len(names), (2, 1500), generator=gen)}
+    batch = {
+        "points": torch.cat([pts, pts / 0.6], -1),
+        "meta": [{"point_part_names": names}] * 2,
+        "point_parts": torch.randint(0, len(names), (2, 1500), generator=gen),
+    }
     w = LossWeights(collision=0.0)
     st = obj.sample_st(gen)
     grid = obj.batch_terms(params, batch, st, w)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 
-
 import luigi
 import numpy as np
 import pytest
@@ -13,8 +12,8 @@ import torch
 import webdataset as wds
 
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS, part_family, present_parts
-from pipeline.shapes import generate
 from pipeline.dataset.shards import list_shards
+from pipeline.shapes import generate
 from train.data import DataSettings, collate, decode_sample
 from train.losses import Groups, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.weights import template_weights
@@ -28,7 +27,12 @@ N_MODELS = 9  # among them airplanes without engines (00008 at seed 0)
 
 def test_part_family_strips_side_and_instance() -> None:
     assert [part_family(x) for x in ("wing_l", "engine0_r", "foot_front_l", "peg12", "body")] == [
-        "wing", "engine", "foot_front", "peg", "body"]  # fmt: skip
+        "wing",
+        "engine",
+        "foot_front",
+        "peg",
+        "body",
+    ]
     assert present_parts(["wing_r", "wing_l", "engine1_l", "fuselage"]) == ["engine", "fuselage", "wing"]
     assert present_parts([]) is None
 
@@ -36,9 +40,24 @@ def test_part_family_strips_side_and_instance() -> None:
 @pytest.fixture(scope="module")
 def airplane_batch(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("parts")
-    ok = luigi.build([BuildCategory(category="airplane", models_per_category=N_MODELS, views=1, variants=1,
-                                    image_size=64, out_size=64, batch_size=N_MODELS, work_dir=str(root / "work"),
-                                    dataset_dir=str(root / "ds"))], local_scheduler=True, workers=1, log_level="WARNING")  # fmt: skip
+    ok = luigi.build(
+        [
+            BuildCategory(
+                category="airplane",
+                models_per_category=N_MODELS,
+                views=1,
+                variants=1,
+                image_size=64,
+                out_size=64,
+                batch_size=N_MODELS,
+                work_dir=str(root / "work"),
+                dataset_dir=str(root / "ds"),
+            )
+        ],
+        local_scheduler=True,
+        workers=1,
+        log_level="WARNING",
+    )
     assert ok
     urls = [str(p) for p in list_shards(root / "ds" / "airplane")]
     settings = DataSettings(eval_views=1, n_points=4000, image_size=64)
@@ -71,8 +90,11 @@ def test_engine_patches_masked_off_in_every_term(airplane_batch: dict) -> None:
     engine = torch.tensor(tpl.optional_parts["engine"])
     closing = torch.tensor(tpl.closing_patches.get("engine", []), dtype=torch.long)
     without = [b for b, m in enumerate(airplane_batch["meta"]) if "engine" not in m[PRESENT_PARTS]]
-    expected = [m["model_id"] for m in airplane_batch["meta"]
-                if not any(p.label.startswith("engine") for p in generate("airplane", int(m["model_id"])).parts)]
+    expected = [
+        m["model_id"]
+        for m in airplane_batch["meta"]
+        if not any(p.label.startswith("engine") for p in generate("airplane", int(m["model_id"])).parts)
+    ]
     assert without and [airplane_batch["meta"][b]["model_id"] for b in without] == expected
     for b in range(N_MODELS):
         assert bool(mask[b, engine].any()) == (b not in without)
@@ -90,14 +112,19 @@ def test_engine_patches_masked_off_in_every_term(airplane_batch: dict) -> None:
     weights = template_weights(tpl.regularizers, {"collision": 1.0})
     assert weights.symmetry == 1.0 and weights.template_normal > 0
     st = obj.sample_st(None)
-    batch = {k: (v[without] if isinstance(v, torch.Tensor) else [v[b] for b in without]) for k, v in airplane_batch.items()}
+    batch = {
+        k: (v[without] if isinstance(v, torch.Tensor) else [v[b] for b in without]) for k, v in airplane_batch.items()
+    }
     a = obj.batch_terms(base.expand(len(without), -1), batch, st, weights)
     c = obj.batch_terms(moved.expand(len(without), -1), batch, st, weights)
     for name in a:
         assert torch.allclose(a[name], c[name], rtol=1e-5, atol=1e-7), name
     # ... while an airplane with engines sees the move in its Chamfer and symmetry terms
     with_engine = [b for b in range(N_MODELS) if b not in without][:1]
-    batch = {k: (v[with_engine] if isinstance(v, torch.Tensor) else [v[b] for b in with_engine]) for k, v in airplane_batch.items()}
+    batch = {
+        k: (v[with_engine] if isinstance(v, torch.Tensor) else [v[b] for b in with_engine])
+        for k, v in airplane_batch.items()
+    }
     a = obj.batch_terms(base[None], batch, st, weights)
     c = obj.batch_terms(moved[None], batch, st, weights)
     assert c["chamfer"] > a["chamfer"] and c["symmetry"] > a["symmetry"]

@@ -59,8 +59,10 @@ def test_declines_other_layouts_and_damaged_files(tmp_path):
 def test_embree_worker_starts_without_trimesh(tmp_path):
     path = tmp_path / "m.ply"
     write_ply(path, *(lambda m: (m.vertices, m.faces))(trimesh.creation.icosphere(1)))
-    code = ("import sys; import render.worker, render.edge_lines; "
-            f"v, f = render.worker.load_mesh({str(path)!r}); "
-            "assert len(f) == 80; print('trimesh' in sys.modules)")
+    code = (
+        "import sys; import render.worker, render.edge_lines; "
+        f"v, f = render.worker.load_mesh({str(path)!r}); "
+        "assert len(f) == 80; print('trimesh' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

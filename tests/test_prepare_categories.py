@@ -80,4 +80,6 @@ def test_category_preparation_is_byte_deterministic(prepared, tmp_path):
     ref = next(r for r in refs if r.category == "airplane")
     prepare_batch([ref], tmp_path, DEFAULTS)
     for name in ("mesh.ply", "samples.npy"):
-        assert (tmp_path / "airplane" / "00001" / name).read_bytes() == (stage / "airplane" / "00001" / name).read_bytes()
+        assert (tmp_path / "airplane" / "00001" / name).read_bytes() == (
+            stage / "airplane" / "00001" / name
+        ).read_bytes()

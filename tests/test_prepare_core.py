@@ -12,10 +12,10 @@ import pytest
 import trimesh
 
 from pipeline.core.records import ModelRef, read_record
-from pipeline.sources.mesh_io import read_ply
 from pipeline.prepare.batch import PrepareSettings, prepare_batch, prepare_model
 from pipeline.prepare.mesh_checks import surface_facts
 from pipeline.prepare.watertight import validated_surface
+from pipeline.sources.mesh_io import read_ply
 
 FAST = PrepareSettings(resolution=3000, max_faces=4000, n_samples=16384)
 
@@ -114,9 +114,13 @@ def test_preparation_is_byte_deterministic(tmp_path):
     outs = []
     for run in range(2):
         prepare_model(_ref(src), tmp_path / f"run{run}", FAST)
-        outs.append(((tmp_path / f"run{run}" / "mesh.ply").read_bytes(),
-                     (tmp_path / f"run{run}" / "samples.npy").read_bytes(),
-                     (tmp_path / f"run{run}" / "lines.ply").read_bytes()))
+        outs.append(
+            (
+                (tmp_path / f"run{run}" / "mesh.ply").read_bytes(),
+                (tmp_path / f"run{run}" / "samples.npy").read_bytes(),
+                (tmp_path / f"run{run}" / "lines.ply").read_bytes(),
+            )
+        )
     assert outs[0] == outs[1]
     # A different model id draws different samples (keyed generator, not a global one).
     prepare_model(_ref(src, model_id="other"), tmp_path / "run2", FAST)
@@ -226,11 +230,13 @@ def _surfaces_to_check() -> dict[str, trimesh.Trimesh]:
         "open": trimesh.Trimesh(box.vertices, box.faces[1:], process=False),
         "one face flipped": trimesh.Trimesh(box.vertices, flipped, process=False),
         "two apart": trimesh.util.concatenate([box, far]),
-        "two at a corner": trimesh.Trimesh(*trimesh.util.append_faces([box.vertices, corner.vertices],
-                                                                     [box.faces, corner.faces]), process=True),
+        "two at a corner": trimesh.Trimesh(
+            *trimesh.util.append_faces([box.vertices, corner.vertices], [box.faces, corner.faces]), process=True
+        ),
         # a third face on an existing edge: non-manifold
-        "fin": trimesh.Trimesh(np.vstack([box.vertices, fin[2:]]),
-                               np.vstack([box.faces, [[i[0], i[1], len(box.vertices)]]]), process=False),
+        "fin": trimesh.Trimesh(
+            np.vstack([box.vertices, fin[2:]]), np.vstack([box.faces, [[i[0], i[1], len(box.vertices)]]]), process=False
+        ),
     }
 
 
@@ -239,7 +245,12 @@ def test_surface_facts_answer_as_trimesh_does(name):
     mesh = _surfaces_to_check()[name]
     facts = surface_facts(mesh.vertices, mesh.faces)
     watertight, winding, parts, bodies, volume = _facts_by_trimesh(mesh)
-    assert (facts.watertight, facts.winding_consistent, facts.face_parts, facts.bodies) == (watertight, winding, parts, bodies)
+    assert (facts.watertight, facts.winding_consistent, facts.face_parts, facts.bodies) == (
+        watertight,
+        winding,
+        parts,
+        bodies,
+    )
     if watertight and winding:  # (otherwise the "volume" depends on the formula; the checks never ask it)
         assert facts.volume == pytest.approx(volume, rel=1e-9, abs=1e-12)
 

@@ -53,8 +53,10 @@ def test_pull_output_failing_the_check_falls_back_to_the_envelope(tmp_path, monk
     monkeypatch.setattr(refine, "pull_to_source", _pull_leaving_a_nan)
     rec = _prepare(src, tmp_path / "broken")
     assert rec["status"] == "ok"
-    assert rec["refinements"] == {"pull_to_source": "fell back: not watertight (open or non-manifold edges)",
-                                  "decimate": "not needed"}
+    assert rec["refinements"] == {
+        "pull_to_source": "fell back: not watertight (open or non-manifold edges)",
+        "decimate": "not needed",
+    }
     assert unpulled["refinements"] == {"pull_to_source": "off", "decimate": "not needed"}
     assert rec["method"]["attempts"] == 1  # the fallback is not a coarser retry
     # falling back is exactly the build without the pull
@@ -99,10 +101,11 @@ def test_strip_joins_in_the_source_do_not_poison_the_pull(tmp_path):
     assert rec["refinements"]["pull_to_source"] == "applied"
 
 
-@pytest.mark.parametrize("offset,extents", [((9.9e4, 0.0, 0.0), (1.0, 1.0, 1.0)),
-                                            ((9.9e4, 9.9e4, 9.9e4), BOX),
-                                            ((-9.9e4, -9.9e4, -9.9e4), (0.1, 0.1, 0.1))],
-                         ids=["unit-box-x", "box-xyz", "small-box-negative"])
+@pytest.mark.parametrize(
+    "offset,extents",
+    [((9.9e4, 0.0, 0.0), (1.0, 1.0, 1.0)), ((9.9e4, 9.9e4, 9.9e4), BOX), ((-9.9e4, -9.9e4, -9.9e4), (0.1, 0.1, 0.1))],
+    ids=["unit-box-x", "box-xyz", "small-box-negative"],
+)
 def test_a_box_far_from_the_origin_builds_as_it_does_at_the_origin(tmp_path, offset, extents):
     # At 1e5 units out the signed volume cancelled to noise: "non-positive enclosed volume"
     far = _prepare(_box_obj(tmp_path / "far", offset, extents), tmp_path / "far" / "out")

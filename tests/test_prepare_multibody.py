@@ -10,10 +10,10 @@ import pytest
 import trimesh
 
 from pipeline.core.records import ModelRef, read_record
-from pipeline.sources.mesh_io import read_ply
 from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE
 from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.shapes import DETACHABLE, generate
+from pipeline.sources.mesh_io import read_ply
 
 FAST = PrepareSettings(resolution=3000, max_faces=6000)
 

@@ -14,14 +14,18 @@ from pipeline.prepare.watertight import FOLD_COS, make_watertight, pull_to_sourc
 
 
 def _distances(points: np.ndarray, source: trimesh.Trimesh) -> np.ndarray:
-    return pcu.closest_points_on_mesh(points, np.asarray(source.vertices, dtype=np.float64),
-                                      np.asarray(source.faces, dtype=np.int32))[0]
+    return pcu.closest_points_on_mesh(
+        points, np.asarray(source.vertices, dtype=np.float64), np.asarray(source.faces, dtype=np.int32)
+    )[0]
 
 
 def _parts() -> list[trimesh.Trimesh]:
     # two overlapping boxes and a cylinder: a soup with buried faces, like the procedural models
-    parts = [trimesh.creation.box((1.0, 0.3, 0.3)), trimesh.creation.box((0.2, 0.8, 0.1)),
-             trimesh.creation.cylinder(0.08, 0.6, sections=24)]
+    parts = [
+        trimesh.creation.box((1.0, 0.3, 0.3)),
+        trimesh.creation.box((0.2, 0.8, 0.1)),
+        trimesh.creation.cylinder(0.08, 0.6, sections=24),
+    ]
     parts[2].apply_translation((0.35, 0.0, 0.2))
     return parts
 
@@ -37,8 +41,9 @@ def test_pull_brings_the_envelope_close_and_keeps_it_closed_and_unfolded():
     before, after = _distances(v, src), _distances(pulled, src)
     assert np.median(after) < 0.2 * np.median(before)
     assert trimesh.Trimesh(pulled, f, process=False).is_watertight
-    turned = (trimesh.Trimesh(v, f, process=False).face_normals
-              * trimesh.Trimesh(pulled, f, process=False).face_normals).sum(axis=1)
+    turned = (
+        trimesh.Trimesh(v, f, process=False).face_normals * trimesh.Trimesh(pulled, f, process=False).face_normals
+    ).sum(axis=1)
     assert (turned > FOLD_COS).all()
     # never into the solid: buried faces do not attract, the closest point is on the outer surface
     assert not any(part.contains(pulled).any() for part in _parts())

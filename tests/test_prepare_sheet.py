@@ -12,8 +12,21 @@ from workflows.sheets.prepare import main
 
 def test_prepare_sheet_command(tmp_path):
     out = tmp_path / "sheets" / "prepared.png"
-    args = ["--out", str(out), "--work", str(tmp_path / "work"), "--per-category", "1",
-            "--categories", "mug", "knife", "--resolution", "2000", "--size", "64"]
+    args = [
+        "--out",
+        str(out),
+        "--work",
+        str(tmp_path / "work"),
+        "--per-category",
+        "1",
+        "--categories",
+        "mug",
+        "knife",
+        "--resolution",
+        "2000",
+        "--size",
+        "64",
+    ]
     main(args)
     img = np.asarray(Image.open(out).convert("L"))
     # Two rows (categories) of two thumbnails (raw, prepared), each with drawn (non-white) pixels.

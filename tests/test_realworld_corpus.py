@@ -90,16 +90,21 @@ def _chunk(cid: int, body: bytes) -> bytes:
 
 def _mesh_3ds(vertices: list, faces: list, frame: np.ndarray = np.vstack([np.eye(3), np.zeros(3)])) -> bytes:
     verts = _chunk(0x4110, struct.pack("<H", len(vertices)) + np.asarray(vertices, "<f4").tobytes())
-    tris = _chunk(0x4120, struct.pack("<H", len(faces))
-                  + np.hstack([np.asarray(faces), np.zeros((len(faces), 1))]).astype("<u2").tobytes())
+    tris = _chunk(
+        0x4120,
+        struct.pack("<H", len(faces))
+        + np.hstack([np.asarray(faces), np.zeros((len(faces), 1))]).astype("<u2").tobytes(),
+    )
     return _chunk(0x4100, verts + tris + _chunk(0x4160, np.asarray(frame, "<f4").tobytes()))
 
 
 def test_3ds_meshes_of_every_object_are_concatenated_and_other_chunks_skipped():
     tri = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
-    objects = [_chunk(0x4000, b"wing\0" + _mesh_3ds(tri, [[0, 1, 2]])),
-               _chunk(0xAFFF, b"material"),
-               _chunk(0x4000, b"body\0" + _mesh_3ds(tri + [[0, 0, 1]], [[0, 1, 3], [1, 2, 3]]))]
+    objects = [
+        _chunk(0x4000, b"wing\0" + _mesh_3ds(tri, [[0, 1, 2]])),
+        _chunk(0xAFFF, b"material"),
+        _chunk(0x4000, b"body\0" + _mesh_3ds(tri + [[0, 0, 1]], [[0, 1, 3], [1, 2, 3]])),
+    ]
     data = _chunk(0x4D4D, _chunk(0x0002, bytes(4)) + _chunk(0x3D3D, b"".join(objects)) + _chunk(0xB000, b"keys"))
     v, f = read_3ds(data)
     assert v.shape == (7, 3) and f.tolist() == [[0, 1, 2], [3, 4, 6], [4, 5, 6]]
@@ -136,20 +141,24 @@ def test_converter_reads_the_package_leaves_out_copies_and_the_logo_and_keeps_th
     (root / "usr/share/doc/gl-117-data").mkdir(parents=True)
     (root / "usr/share/doc/gl-117-data/copyright").write_text("GPL-2\n")
     (root / "DEBIAN").mkdir()
-    (root / "DEBIAN/control").write_text("Package: gl-117-data\nVersion: 1\nArchitecture: all\n"
-                                         "Maintainer: t <t@t>\nDescription: t\n")
-    subprocess.run(["dpkg-deb", "--build", str(root), str(tmp_path / "gl-117-data_1_all.deb")], check=True,
-                   capture_output=True)
+    (root / "DEBIAN/control").write_text(
+        "Package: gl-117-data\nVersion: 1\nArchitecture: all\nMaintainer: t <t@t>\nDescription: t\n"
+    )
+    subprocess.run(
+        ["dpkg-deb", "--build", str(root), str(tmp_path / "gl-117-data_1_all.deb")], check=True, capture_output=True
+    )
     written = convert(GAMES["gl117"], tmp_path / "gl-117-data_1_all.deb", tmp_path / "out")
     assert written == ["gl117_gl-14", "gl117_transp1"]
     assert (tmp_path / "out/airplane/COPYRIGHT.debian").read_text() == "GPL-2\n"
-    v = np.loadtxt([ln[2:] for ln in (tmp_path / "out/airplane/gl117_gl-14.obj").read_text().splitlines()
-                    if ln.startswith("v ")])
+    v = np.loadtxt(
+        [ln[2:] for ln in (tmp_path / "out/airplane/gl117_gl-14.obj").read_text().splitlines() if ln.startswith("v ")]
+    )
     # the project's (x, y, z) is the 3DS (y, z, x): the fan's sin, its height 0, its cos
     assert np.allclose(np.ptp(v, axis=0), [np.ptp(np.sin(np.linspace(0, 6, 701))), 0.0, 2.0], atol=1e-5)
 
 
 # ---------------------------------------------------------------- the corpus (slow)
+
 
 def _corpus(source: str, cache: Path) -> Path:
     """The converted meshes of ``source``, fetched into the cache the first time."""
@@ -158,11 +167,16 @@ def _corpus(source: str, cache: Path) -> Path:
         return done
     partial = cache / f"{source}.partial"
     shutil.rmtree(partial, ignore_errors=True)
-    run = subprocess.run([sys.executable, str(TOOLS / "fetch_games.py"), "--source", source, "--out", str(partial)],
-                         capture_output=True, text=True, timeout=1800)
+    run = subprocess.run(
+        [sys.executable, str(TOOLS / "fetch_games.py"), "--source", source, "--out", str(partial)],
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     if run.returncode == CANNOT_FETCH:
-        pytest.skip(f"real-world corpus {source!r} not fetched, the test needs apt access to Debian: "
-                    f"{run.stderr.strip()}")
+        pytest.skip(
+            f"real-world corpus {source!r} not fetched, the test needs apt access to Debian: {run.stderr.strip()}"
+        )
     assert run.returncode == 0, run.stderr
     (partial / ".complete").write_text(run.stdout)
     shutil.rmtree(done, ignore_errors=True)
@@ -184,12 +198,38 @@ def test_real_game_meshes_build(source, corpus_cache, tmp_path):
     models = sorted(p.stem for p in (src / category).glob("*.obj"))
     assert len(models) == SOURCE_SIZES[source]
     run = subprocess.run(
-        [str(Path(sys.executable).parent / "luigi"), "--module", "workflows", "BuildDataset", "--local-scheduler",
-         "--source", str(src), "--categories", category, "--models-per-category", "0", "--views", "1",
-         "--variants", "1", "--image-size", "64", "--out-size", "64",
-         "--render-settings", '{"backend": "embree"}',
-         "--dataset-dir", str(tmp_path / "ds"), "--work-dir", str(tmp_path / "work")],
-        cwd=ROOT, capture_output=True, text=True, timeout=1200)
+        [
+            str(Path(sys.executable).parent / "luigi"),
+            "--module",
+            "workflows",
+            "BuildDataset",
+            "--local-scheduler",
+            "--source",
+            str(src),
+            "--categories",
+            category,
+            "--models-per-category",
+            "0",
+            "--views",
+            "1",
+            "--variants",
+            "1",
+            "--image-size",
+            "64",
+            "--out-size",
+            "64",
+            "--render-settings",
+            '{"backend": "embree"}',
+            "--dataset-dir",
+            str(tmp_path / "ds"),
+            "--work-dir",
+            str(tmp_path / "work"),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
     assert (tmp_path / "ds" / "manifest.json").is_file(), run.stderr[-2000:]
     manifest = json.loads((tmp_path / "ds" / "manifest.json").read_text())
     frag = manifest["categories"][category]

@@ -12,38 +12,58 @@ import pytest
 
 from pipeline.core.errors import ModelError
 from pipeline.core.records import ModelRef
-from workflows.build_settings import BuildSettings
 from pipeline.prepare.batch import prepare_model
 from pipeline.prepare.settings import PrepareSettings
 from pipeline.sources import layouts, mesh_io
-from workflows.listing import current_listing
 from render import rigs
 from render.cameras import rig
 from render.settings import RenderSettings
+from workflows.build_settings import BuildSettings
+from workflows.listing import current_listing
 from workflows.validate import BuildParameterError, check_categories, check_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 
 CUBE_V = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
-CUBE_F = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
-          (2, 3, 7), (2, 7, 6), (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)]
+CUBE_F = [
+    (0, 1, 3),
+    (0, 3, 2),
+    (4, 6, 7),
+    (4, 7, 5),
+    (0, 4, 5),
+    (0, 5, 1),
+    (2, 3, 7),
+    (2, 7, 6),
+    (0, 2, 6),
+    (0, 6, 4),
+    (1, 5, 7),
+    (1, 7, 3),
+]
 
 
 # ---- source layouts --------------------------------------------------------------------------
 
+
 @pytest.fixture
 def list_file_layout():
     """A layout of our own: a folder holding ``models.txt`` with "<category> <relative path>" lines."""
+
     def models(source, category, seed, work_dir, count):
         for line in (Path(source) / "models.txt").read_text().splitlines():
             cat, rel = line.split()
             if cat == category:
                 yield ModelRef(cat, Path(rel).stem, Path(source) / rel, "listfile")
 
-    entry = layouts.register_layout(layouts.Layout(
-        "listfile", detect=lambda source: (Path(source) / "models.txt").is_file(),
-        categories=lambda source: sorted({line.split()[0] for line in (Path(source) / "models.txt").read_text().splitlines()}),
-        models=models))
+    entry = layouts.register_layout(
+        layouts.Layout(
+            "listfile",
+            detect=lambda source: (Path(source) / "models.txt").is_file(),
+            categories=lambda source: sorted(
+                {line.split()[0] for line in (Path(source) / "models.txt").read_text().splitlines()}
+            ),
+            models=models,
+        )
+    )
     yield entry
     del layouts.LAYOUTS["listfile"]
 
@@ -79,6 +99,7 @@ def test_removing_the_layout_restores_the_built_in_ones(tmp_path):
 
 # ---- mesh formats ----------------------------------------------------------------------------
 
+
 def _load_tri(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
     rows = [line.split() for line in path.read_text().splitlines()[1:] if line.strip()]
     v = np.array([[float(w) for w in r[1:]] for r in rows if r[0] == "v"])
@@ -94,14 +115,19 @@ def _check_tri(path: Path, head: bytes, size: int, found: str | None) -> None:
 @pytest.fixture
 def tri_format():
     """A text format of our own: a "TRI" line, then "v x y z" and "t i j k" (0-based) lines."""
-    fmt = mesh_io.register_format(mesh_io.MeshFormat(
-        "tri", (".tri",), sniff=lambda head, size: head.startswith(b"TRI\n"), load=_load_tri, check=_check_tri))
+    fmt = mesh_io.register_format(
+        mesh_io.MeshFormat(
+            "tri", (".tri",), sniff=lambda head, size: head.startswith(b"TRI\n"), load=_load_tri, check=_check_tri
+        )
+    )
     yield fmt
     del mesh_io.FORMATS["tri"]
 
 
 def _tri_text() -> str:
-    return "TRI\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in CUBE_V) + "".join(f"t {a} {b} {c}\n" for a, b, c in CUBE_F)
+    return (
+        "TRI\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in CUBE_V) + "".join(f"t {a} {b} {c}\n" for a, b, c in CUBE_F)
+    )
 
 
 def test_a_registered_format_is_listed_sniffed_checked_loaded_and_prepared(tmp_path, tri_format):
@@ -140,6 +166,7 @@ def test_without_the_format_its_files_are_neither_listed_nor_loaded(tmp_path):
 
 # ---- camera rigs -----------------------------------------------------------------------------
 
+
 @pytest.fixture
 def turntable_rig():
     @rigs.register_rig("turntable")
@@ -153,7 +180,12 @@ def turntable_rig():
 def test_a_registered_rig_is_accepted_by_the_settings_and_used_by_rig(tmp_path, turntable_rig):
     s = RenderSettings(rig="turntable", views=4)
     views = rig(s, 0, "car", "x", np.zeros((1, 3)))
-    assert [(v.azimuth_deg, v.elevation_deg) for v in views] == [(0.0, 20.0), (90.0, 20.0), (180.0, 20.0), (270.0, 20.0)]
+    assert [(v.azimuth_deg, v.elevation_deg) for v in views] == [
+        (0.0, 20.0),
+        (90.0, 20.0),
+        (180.0, 20.0),
+        (270.0, 20.0),
+    ]
     assert np.allclose(views[1].eye, s.distance * np.array([np.cos(np.radians(20)), np.sin(np.radians(20)), 0.0]))
     # the build's render overrides accept it too (the stage key then differs from the default rig's)
     b = BuildSettings(render_overrides=json.dumps({"rig": "turntable"}), work_dir=tmp_path)
@@ -163,11 +195,14 @@ def test_a_registered_rig_is_accepted_by_the_settings_and_used_by_rig(tmp_path, 
 
 def test_unknown_rigs_are_refused_with_the_registered_names():
     assert "turntable" not in rigs.RIGS
-    with pytest.raises(ValueError, match=r"rig must be one of \('random', 'representative', 'front_side_top'\), got 'turntable'"):
+    with pytest.raises(
+        ValueError, match=r"rig must be one of \('random', 'representative', 'front_side_top'\), got 'turntable'"
+    ):
         RenderSettings(rig="turntable")
 
 
 # ---- loss terms ------------------------------------------------------------------------------
+
 
 def test_loss_weights_match_the_term_table_and_the_table_drives_the_flags():
     """A term is one LOSS_TERMS entry and one LossWeights field, in the same order."""
@@ -179,8 +214,9 @@ def test_loss_weights_match_the_term_table_and_the_table_drives_the_flags():
     from train.losses.weights import LossWeights
 
     assert [t.name for t in LOSS_TERMS] == [f.name for f in dataclasses.fields(LossWeights)]
-    assert LossWeights() == LossWeights(chamfer=1.0, normal=0.008, flat=2.0, collision=1.0,
-                                        template_normal=1e-4, symmetry=1.0)  # the paper's (collision: ours)
+    assert LossWeights() == LossWeights(
+        chamfer=1.0, normal=0.008, flat=2.0, collision=1.0, template_normal=1e-4, symmetry=1.0
+    )  # the paper's (collision: ours)
     import argparse
 
     p = argparse.ArgumentParser()

@@ -16,10 +16,10 @@ from PIL import Image
 
 from augment.metrics import stroke_scores
 from pipeline.core.atomic import read_json
-from workflows.build_settings import BuildSettings
 from render.batch import render_batch
 from render.edge_lines import draw_strokes
 from render.settings import RenderSettings
+from workflows.build_settings import BuildSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 CATEGORIES = ("airplane", "car", "mug")
@@ -114,19 +114,46 @@ def test_draw_strokes_width() -> None:
 
 def test_luigi_build_with_embree_backend(tmp_path) -> None:
     settings = json.dumps({"backend": "embree"})
-    cmd = [str(Path(sys.executable).parent / "luigi"), "--module", "workflows", "BuildDataset",
-           "--local-scheduler", "--categories", "mug", "--models-per-category", "2", "--views", "2",
-           "--variants", "1", "--image-size", "64", "--out-size", "64",
-           "--render-settings", settings, "--work-dir", str(tmp_path / "work"),
-           "--dataset-dir", str(tmp_path / "ds")]
+    cmd = [
+        str(Path(sys.executable).parent / "luigi"),
+        "--module",
+        "workflows",
+        "BuildDataset",
+        "--local-scheduler",
+        "--categories",
+        "mug",
+        "--models-per-category",
+        "2",
+        "--views",
+        "2",
+        "--variants",
+        "1",
+        "--image-size",
+        "64",
+        "--out-size",
+        "64",
+        "--render-settings",
+        settings,
+        "--work-dir",
+        str(tmp_path / "work"),
+        "--dataset-dir",
+        str(tmp_path / "ds"),
+    ]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get("PYTHONPATH")] if p])}
     run = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     manifest = read_json(tmp_path / "ds" / "manifest.json")
     mug = manifest["categories"]["mug"]
     assert mug["models_built"] == 2
-    s = BuildSettings(models_per_category=2, views=2, variants=1, image_size=64, out_size=64,
-                      render_overrides=settings, work_dir=tmp_path / "work")
+    s = BuildSettings(
+        models_per_category=2,
+        views=2,
+        variants=1,
+        image_size=64,
+        out_size=64,
+        render_overrides=settings,
+        work_dir=tmp_path / "work",
+    )
     render_dir = s.stage_dir("render")
     assert render_dir.is_dir()
     recs = [read_json(p) for p in sorted(render_dir.glob("mug/*/record.json"))]

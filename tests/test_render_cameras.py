@@ -87,7 +87,9 @@ def _rod(length: float = 1.0, width: float = 0.05) -> np.ndarray:
 def test_representative_rig_never_looks_down_a_rod():
     rod = _rod()
     random = RenderSettings(views=64, rig="random")
-    ends_on = [silhouette_extent(random, rod, v.azimuth_deg, v.elevation_deg) for v in rig(random, 0, "knife", "k", rod)]
+    ends_on = [
+        silhouette_extent(random, rod, v.azimuth_deg, v.elevation_deg) for v in rig(random, 0, "knife", "k", rod)
+    ]
     assert min(ends_on) < 0.35  # some random views look along the blade: a small blob
     s = RenderSettings(views=8)
     assert s.rig == "representative"
@@ -102,7 +104,10 @@ def test_representative_rig_keeps_random_views_of_a_round_model():
     rig's own draws (the first ``views`` of the candidates)."""
     s = RenderSettings(views=4)
     chosen = [(v.azimuth_deg, v.elevation_deg) for v in rig(s, 0, "mug", "a", SPHERE)]
-    drawn = [(v.azimuth_deg, v.elevation_deg) for v in rig(RenderSettings(views=s.view_candidates, rig="random"), 0, "mug", "a", SPHERE)]
+    drawn = [
+        (v.azimuth_deg, v.elevation_deg)
+        for v in rig(RenderSettings(views=s.view_candidates, rig="random"), 0, "mug", "a", SPHERE)
+    ]
     assert chosen == drawn[:4]
 
 

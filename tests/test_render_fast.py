@@ -37,11 +37,9 @@ def rendered(tmp_path_factory):
     items.insert(1, ("broken", broken))
     calls = []
     stage = root / "stage"
-    records = render_batch(CATEGORY, items, stage, SETTINGS, SEED,
-                           progress=lambda d, t, m: calls.append((d, t, m)))
+    records = render_batch(CATEGORY, items, stage, SETTINGS, SEED, progress=lambda d, t, m: calls.append((d, t, m)))
     meshes = {mid: trimesh.load(path, force="mesh", process=False) for mid, path in items if mid != "broken"}
-    return {"root": root, "stage": stage, "items": items, "records": records, "calls": calls,
-            "meshes": meshes}
+    return {"root": root, "stage": stage, "items": items, "records": records, "calls": calls, "meshes": meshes}
 
 
 def model_out(rendered, mid: str) -> Path:
@@ -142,6 +140,7 @@ def test_restart_skips_done_models(rendered, monkeypatch):
     # every model has a record: no worker process may be started
     def boom(job):
         raise AssertionError("worker started for a finished batch")
+
     monkeypatch.setattr(batch_mod, "worker_command", boom)
     recs = render_batch(CATEGORY, rendered["items"], rendered["stage"], SETTINGS, SEED)
     assert [r["status"] for r in recs] == [r["status"] for r in rendered["records"]]
@@ -151,8 +150,10 @@ def test_worker_killed_fails_remaining_with_reason(tmp_path, monkeypatch, render
     items = rendered["items"][:2]
     # a stand-in worker that speaks the progress protocol, starts the first model, then dies
     line = PROGRESS_PREFIX + json.dumps({"done": 0, "total": 2, "message": "x", "current": items[0][0]})
-    kill = ("import os, signal, sys; print(%r, flush=True); sys.stderr.write('boom in render\\n');"
-            " sys.stderr.flush(); os.kill(os.getpid(), signal.SIGKILL)" % line)
+    kill = (
+        "import os, signal, sys; print(%r, flush=True); sys.stderr.write('boom in render\\n');"
+        " sys.stderr.flush(); os.kill(os.getpid(), signal.SIGKILL)" % line
+    )
     monkeypatch.setattr(batch_mod, "worker_command", lambda job: [sys.executable, "-c", kill])
     recs = render_batch(CATEGORY, items, tmp_path, SETTINGS, SEED)
     for r in recs:

@@ -53,8 +53,13 @@ def test_worker_dies_with_killed_parent_and_job_folder_is_cleaned(tmp_path: Path
     write_ply(tmp_path / "mesh.ply", box.vertices * 0.5, box.faces)
     stage = tmp_path / "render"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    parent = subprocess.Popen([sys.executable, "-c", SCRIPT, str(tmp_path / "mesh.ply"), str(stage)], env=env,
-                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parent = subprocess.Popen(
+        [sys.executable, "-c", SCRIPT, str(tmp_path / "mesh.ply"), str(stage)],
+        env=env,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         # the worker has started rendering once the first model's record is written
         assert _wait(lambda: any((stage / "mug").glob("m*/record.json")), 120), "worker never rendered"

@@ -30,8 +30,11 @@ def prepared(tmp_path_factory):
     for cat in CATEGORIES:
         refs = list_models("procedural", cat, 1, 0, work)
         recs = prepare_batch(refs, work / "prepare", PrepareSettings())
-        out[cat] = [(r.model_id, work / "prepare" / cat / r.model_id / LINE_MESH_FILE)
-                    for r, rec in zip(refs, recs) if rec["status"] == "ok"]
+        out[cat] = [
+            (r.model_id, work / "prepare" / cat / r.model_id / LINE_MESH_FILE)
+            for r, rec in zip(refs, recs)
+            if rec["status"] == "ok"
+        ]
     return work, out
 
 
@@ -101,8 +104,8 @@ def test_fragment_joining_only_chains_captured_points(prepared, tmp_path):
 def test_line_mesh_drawings_are_faithful_and_byte_identical(prepared, tmp_path):
     """The car's line mesh drawn twice: same bytes; its source's sharp edges are inked and the
     ink lies on the source's lines (bench/bench_lines.py measures this per category)."""
-    from pipeline.prepare.line_mesh import line_mesh
     from pipeline.core.records import read_record
+    from pipeline.prepare.line_mesh import line_mesh
     from pipeline.sources.mesh_io import load_mesh
     from render.line_fidelity import ViewScore, score_view
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from workflows.scheduler import (STATE_FILE, UnsafeStateDir, is_loopback, luigid_argv, main, private_state_dir)
+from workflows.scheduler import STATE_FILE, UnsafeStateDir, is_loopback, luigid_argv, main, private_state_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -100,9 +100,13 @@ def test_scheduler_listens_on_loopback_only_and_keeps_state_private(tmp_path: Pa
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     state = tmp_path / "luigid"
-    proc = subprocess.Popen([sys.executable, "-m", "workflows.scheduler", "--port", str(port),
-                             "--state-dir", str(state)], cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "workflows.scheduler", "--port", str(port), "--state-dir", str(state)],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while not _listening_addresses(proc.pid):

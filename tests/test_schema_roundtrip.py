@@ -58,9 +58,18 @@ class Reads(dict):
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("schema")
-    task = BuildCategory(category=CATEGORY, models_per_category=MODELS, views=2, variants=1, image_size=64,
-                         out_size=64, batch_size=MODELS, render_settings='{"backend": "embree"}',
-                         work_dir=str(root / "work"), dataset_dir=str(root / "ds"))
+    task = BuildCategory(
+        category=CATEGORY,
+        models_per_category=MODELS,
+        views=2,
+        variants=1,
+        image_size=64,
+        out_size=64,
+        batch_size=MODELS,
+        render_settings='{"backend": "embree"}',
+        work_dir=str(root / "work"),
+        dataset_dir=str(root / "ds"),
+    )
     assert luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")
     return root / "ds"
 
@@ -85,8 +94,15 @@ def test_writer_writes_exactly_the_declared_members_and_fields(built: Path) -> N
         assert meta["split"] == split and split in schema.SPLITS
         assert meta["sketches"] == sketches
         # a procedural model has part labels: every part field is filled
-        for name in ("part_labels", schema.PRESENT_PARTS, schema.POINT_PART_NAMES, "source", "source_sha256",
-                     "normalization", "bodies"):
+        for name in (
+            "part_labels",
+            schema.PRESENT_PARTS,
+            schema.POINT_PART_NAMES,
+            "source",
+            "source_sha256",
+            "normalization",
+            "bodies",
+        ):
             assert meta[name] is not None, name
         points = np.load(io.BytesIO(members[schema.POINTS_MEMBER]))
         assert points.shape == (meta["points"], 6)
@@ -137,7 +153,6 @@ def test_trainer_reads_only_what_the_writer_wrote(built: Path) -> None:
         assert set(meta) == set(schema.META_FIELDS)  # the loader hands the trainer every field
 
 
-
 def test_no_module_but_the_schema_spells_an_on_disk_name() -> None:
     """File, member and field names are imported from the schema, never typed again as literals."""
     names = {v for k, v in vars(schema).items() if k.isupper() and isinstance(v, str)}
@@ -148,12 +163,19 @@ def test_no_module_but_the_schema_spells_an_on_disk_name() -> None:
             if path == ROOT / "pipeline" / "core" / "schema.py":
                 continue
             tree = ast.parse(path.read_text())
-            docs = {id(n.body[0].value) for n in ast.walk(tree)
-                    if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-                    and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+            docs = {
+                id(n.body[0].value)
+                for n in ast.walk(tree)
+                if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                and n.body
+                and isinstance(n.body[0], ast.Expr)
+                and isinstance(n.body[0].value, ast.Constant)
+            }
             for node in ast.walk(tree):
                 if isinstance(node, ast.Constant) and id(node) not in docs and node.value in names:
                     found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.value!r}")
-                if isinstance(node, ast.Tuple) and [getattr(e, "value", None) for e in node.elts] == list(schema.SPLITS):
+                if isinstance(node, ast.Tuple) and [getattr(e, "value", None) for e in node.elts] == list(
+                    schema.SPLITS
+                ):
                     found.append(f"{path.relative_to(ROOT)}:{node.lineno} the split names")
     assert found == []

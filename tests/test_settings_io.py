@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from augment.settings import AugmentSettings, VectorizeSettings
-from workflows.build_settings import BuildSettings
 from pipeline.core.settings_io import SettingError, add_arguments, flag_name, from_args, from_dict
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
 from render.settings import RenderSettings
+from workflows.build_settings import BuildSettings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,21 +37,24 @@ class Probe:
     n_points: int = dataclasses.field(default=5, metadata={"flag": "points", "help": "sample points"})
 
 
-@pytest.mark.parametrize("data, words", [
-    ({"count": "3"}, "Probe.count must be an integer, got '3'"),
-    ({"count": 2.5}, "Probe.count must be an integer, got 2.5"),
-    ({"count": True}, "Probe.count must be an integer, got True"),
-    ({"on": 1}, "Probe.on must be true/false, got 1"),
-    ({"scale": "big"}, "Probe.scale must be a number, got 'big'"),
-    ({"name": 3}, "Probe.name must be a string, got 3"),
-    ({"pair": [1.0]}, "Probe.pair must be a list of 2 values, got [1.0]"),
-    ({"pair": [1.0, "b"]}, "Probe.pair[1] must be a number, got 'b'"),
-    ({"many": "x"}, "Probe.many must be a list, got 'x'"),
-    ({"maybe": "no"}, "Probe.maybe must be an integer or null, got 'no'"),
-    ({"inner": {"depth": "deep"}}, "Probe.inner: Inner.depth must be an integer, got 'deep'"),
-    ({"inner": {"width": 1}}, "Probe.inner: Inner has no setting 'width'; it has: depth"),
-    ({"nope": 1}, "Probe has no setting 'nope'; it has: name, count, scale"),
-])
+@pytest.mark.parametrize(
+    "data, words",
+    [
+        ({"count": "3"}, "Probe.count must be an integer, got '3'"),
+        ({"count": 2.5}, "Probe.count must be an integer, got 2.5"),
+        ({"count": True}, "Probe.count must be an integer, got True"),
+        ({"on": 1}, "Probe.on must be true/false, got 1"),
+        ({"scale": "big"}, "Probe.scale must be a number, got 'big'"),
+        ({"name": 3}, "Probe.name must be a string, got 3"),
+        ({"pair": [1.0]}, "Probe.pair must be a list of 2 values, got [1.0]"),
+        ({"pair": [1.0, "b"]}, "Probe.pair[1] must be a number, got 'b'"),
+        ({"many": "x"}, "Probe.many must be a list, got 'x'"),
+        ({"maybe": "no"}, "Probe.maybe must be an integer or null, got 'no'"),
+        ({"inner": {"depth": "deep"}}, "Probe.inner: Inner.depth must be an integer, got 'deep'"),
+        ({"inner": {"width": 1}}, "Probe.inner: Inner has no setting 'width'; it has: depth"),
+        ({"nope": 1}, "Probe has no setting 'nope'; it has: name, count, scale"),
+    ],
+)
 def test_from_dict_names_the_mistyped_setting(data: dict, words: str) -> None:
     with pytest.raises(SettingError) as err:
         from_dict(Probe, data)
@@ -60,8 +63,12 @@ def test_from_dict_names_the_mistyped_setting(data: dict, words: str) -> None:
 
 
 def test_from_dict_converts_json_values_so_equal_settings_are_equal() -> None:
-    p = from_dict(Probe, json.loads('{"scale": 2, "pair": [0, 3], "many": ["a", "b"], "maybe": null, '
-                                    '"where": "q/r", "inner": {"depth": 4}}'))
+    p = from_dict(
+        Probe,
+        json.loads(
+            '{"scale": 2, "pair": [0, 3], "many": ["a", "b"], "maybe": null, "where": "q/r", "inner": {"depth": 4}}'
+        ),
+    )
     assert p == Probe(scale=2.0, pair=(0.0, 3.0), many=("a", "b"), where=Path("q/r"), inner=Inner(4))
     assert isinstance(p.scale, float) and isinstance(p.pair, tuple) and isinstance(p.where, Path)
     # a nested dict overrides the base's nested settings field by field
@@ -78,10 +85,10 @@ def test_every_stage_reads_its_settings_back_through_from_dict() -> None:
 def test_derived_flags_parse_into_the_same_settings() -> None:
     p = argparse.ArgumentParser()
     add_arguments(p, Probe, skip=("inner",))
-    a = p.parse_args(["--count", "7", "--on", "--pair", "1", "2", "--many", "u", "v", "--points", "9",
-                      "--where", "w"])
-    assert from_args(Probe, a, skip=("inner",)) == Probe(count=7, on=True, pair=(1.0, 2.0), many=("u", "v"),
-                                                        n_points=9, where=Path("w"))
+    a = p.parse_args(["--count", "7", "--on", "--pair", "1", "2", "--many", "u", "v", "--points", "9", "--where", "w"])
+    assert from_args(Probe, a, skip=("inner",)) == Probe(
+        count=7, on=True, pair=(1.0, 2.0), many=("u", "v"), n_points=9, where=Path("w")
+    )
     assert from_args(Probe, p.parse_args([]), skip=("inner",)) == Probe()
     text = p.format_help()
     assert "what it is called" in text and "sample points" in text  # help from comment / metadata
@@ -98,12 +105,37 @@ def test_train_fit_has_a_flag_for_every_setting() -> None:
     flags = {a.option_strings[0] for a in p._actions if a.option_strings}
     wanted = {"--" + flag_name(f).replace("_", "-") for f in dataclasses.fields(FitSettings) if f.name != "weights"}
     assert wanted <= flags and "--points" in flags
-    a = p.parse_args(["--dataset", "d", "--category", "mug", "--template", "mug", "--out", "o",
-                      "--points", "123", "--lr", "0.5", "--device", "cpu"])
+    a = p.parse_args(
+        [
+            "--dataset",
+            "d",
+            "--category",
+            "mug",
+            "--template",
+            "mug",
+            "--out",
+            "o",
+            "--points",
+            "123",
+            "--lr",
+            "0.5",
+            "--device",
+            "cpu",
+        ]
+    )
     s = fit_settings(a)  # the template file's defaults: its regularizers' weights, its matching λ
     mug = load_template("mug")
-    assert s == FitSettings(dataset="d", category="mug", template="mug", out="o", n_points=123, lr=0.5, device="cpu",
-                            weights=template_weights(mug.regularizers), match_normals=mug.match_normals)
+    assert s == FitSettings(
+        dataset="d",
+        category="mug",
+        template="mug",
+        out="o",
+        n_points=123,
+        lr=0.5,
+        device="cpu",
+        weights=template_weights(mug.regularizers),
+        match_normals=mug.match_normals,
+    )
 
 
 def test_build_parameters_are_the_build_settings_fields() -> None:
@@ -117,8 +149,11 @@ def test_build_parameters_are_the_build_settings_fields() -> None:
     assert not names["batch_size"].significant and names["views"].significant
     p = argparse.ArgumentParser()
     add_task_arguments(p, BuildDataset)
-    a = vars(p.parse_args(["--views", "3", "--render-settings", '{"lens_mm": 35}', "--work-dir", "/w",
-                           "--categories", "mug"]))
+    a = vars(
+        p.parse_args(
+            ["--views", "3", "--render-settings", '{"lens_mm": 35}', "--work-dir", "/w", "--categories", "mug"]
+        )
+    )
     assert BuildDataset(**a).build == BuildSettings(views=3, render_overrides='{"lens_mm": 35}', work_dir=Path("/w"))
 
 

@@ -13,6 +13,7 @@ import webdataset as wds
 from PIL import Image
 
 from pipeline.core.atomic import write_json, write_npy
+from pipeline.core.splits import split_of
 from pipeline.dataset.shards import (
     ModelDirs,
     ShardSettings,
@@ -21,11 +22,17 @@ from pipeline.dataset.shards import (
     list_shards,
     write_category_shards,
 )
-from pipeline.core.splits import split_of
 
 
-def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, variants: int = 2,
-                    n_points: int = 8000, bad: str | None = None) -> ModelDirs:
+def make_model_dirs(
+    root: Path,
+    category: str,
+    model_id: str,
+    views: int = 2,
+    variants: int = 2,
+    n_points: int = 8000,
+    bad: str | None = None,
+) -> ModelDirs:
     """Fake prepare/render/augment folders shaped like the real stages' outputs."""
     rng = np.random.default_rng(abs(hash((category, model_id))) % 2**32)
     prep = root / "prepare" / category / model_id
@@ -33,10 +40,16 @@ def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, va
     aug = root / "augment" / category / model_id
     pts = rng.normal(size=(n_points, 6)).astype(np.float32)
     write_npy(prep / "samples.npy", pts)
-    write_json(prep / "record.json", {
-        "status": "ok", "source": {"path": str(root / "src" / f"{model_id}.obj"), "sha256": "ab" * 32},
-        "normalization": {"center": [0, 0, 0], "scale": 1.0}, "parts": [{"label": "body"}, {"label": "handle"}],
-        "bodies": 2})
+    write_json(
+        prep / "record.json",
+        {
+            "status": "ok",
+            "source": {"path": str(root / "src" / f"{model_id}.obj"), "sha256": "ab" * 32},
+            "normalization": {"center": [0, 0, 0], "scale": 1.0},
+            "parts": [{"label": "body"}, {"label": "handle"}],
+            "bodies": 2,
+        },
+    )
     write_json(rend / "cameras.json", {"image_size": 64, "views": [{"azimuth_deg": 30.0 * v} for v in range(views)]})
     write_json(rend / "record.json", {"status": "ok"})
     aug.mkdir(parents=True, exist_ok=True)
@@ -44,7 +57,10 @@ def make_model_dirs(root: Path, category: str, model_id: str, views: int = 2, va
         for k in range(variants):
             img = Image.fromarray((rng.random((32, 32)) * 255).astype(np.uint8), "L")
             img.save(aug / f"sketch_{v:02d}_{k:02d}.png")
-    write_json(aug / "strokes.json", {"out_size": 32, "views": [{"variants": [{"width": 2.0, "strokes": [[[1, 2], [3, 4]]]}] * variants}] * views})
+    write_json(
+        aug / "strokes.json",
+        {"out_size": 32, "views": [{"variants": [{"width": 2.0, "strokes": [[[1, 2], [3, 4]]]}] * variants}] * views},
+    )
     write_json(aug / "record.json", {"status": "ok"})
     if bad == "points":
         (prep / "samples.npy").write_bytes(b"not an npy file")
@@ -62,11 +78,20 @@ def test_split_is_stable_and_roughly_proportional() -> None:
 
 def test_sample_members_and_meta(tmp_path: Path) -> None:
     d = make_model_dirs(tmp_path, "mug", "00003", n_points=20000)
-    s = assemble_sample("mug", d, ShardSettings(points=9000), seed=5, settings_hash="h123",
-                        portable=lambda p: Path(p).name)
+    s = assemble_sample(
+        "mug", d, ShardSettings(points=9000), seed=5, settings_hash="h123", portable=lambda p: Path(p).name
+    )
     assert s.key == "mug_00003"
-    assert sorted(s.members) == ["cameras.json", "meta.json", "points.npy", "sketch_00_00.png",
-                                 "sketch_00_01.png", "sketch_01_00.png", "sketch_01_01.png", "strokes.json"]
+    assert sorted(s.members) == [
+        "cameras.json",
+        "meta.json",
+        "points.npy",
+        "sketch_00_00.png",
+        "sketch_00_01.png",
+        "sketch_01_00.png",
+        "sketch_01_01.png",
+        "strokes.json",
+    ]
     pts = np.load(io.BytesIO(s.members["points.npy"]))
     assert pts.dtype == np.float32 and pts.shape == (9000, 6)
     meta = json.loads(s.members["meta.json"])
@@ -125,8 +150,11 @@ def test_unchanged_shards_keep_mtime_and_stale_are_removed(tmp_path: Path) -> No
 
 
 def test_bad_model_is_recorded_not_raised(tmp_path: Path) -> None:
-    models = [make_model_dirs(tmp_path, "mug", "00000"), make_model_dirs(tmp_path, "mug", "00001", bad="points"),
-              make_model_dirs(tmp_path, "mug", "00002", n_points=100)]
+    models = [
+        make_model_dirs(tmp_path, "mug", "00000"),
+        make_model_dirs(tmp_path, "mug", "00001", bad="points"),
+        make_model_dirs(tmp_path, "mug", "00002", n_points=100),
+    ]
     res = write_category_shards("mug", models, tmp_path / "ds" / "mug", ShardSettings(), 0, "h")
     assert [f["model_id"] for f in res.failed] == ["00001", "00002"]
     assert "samples.npy" in res.failed[0]["path"] and "surface samples" in res.failed[0]["reason"]
@@ -151,5 +179,7 @@ def test_byte_bound_splits_shards(tmp_path: Path) -> None:
 @pytest.mark.parametrize("fractions", [(1, 0, 0), (0, 0, 1)])
 def test_empty_splits_write_no_shards(tmp_path: Path, fractions) -> None:
     models = [make_model_dirs(tmp_path, "mug", f"{i:05d}") for i in range(3)]
-    res = write_category_shards("mug", models, tmp_path / "ds" / "mug", ShardSettings(split_fractions=fractions), 0, "h")
+    res = write_category_shards(
+        "mug", models, tmp_path / "ds" / "mug", ShardSettings(split_fractions=fractions), 0, "h"
+    )
     assert sum(len(v) > 0 for v in res.shards.values()) == 1

@@ -45,15 +45,15 @@ def test_noise_skeletons_match_skan(seed):
 
 def test_odd_skeletons_match_skan():
     block = np.zeros((8, 8), bool)
-    block[2:4, 2:4] = True                     # a 2×2 block: every pixel a junction
+    block[2:4, 2:4] = True  # a 2×2 block: every pixel a junction
     assert skeleton_paths(block).degrees.sum() == 2 * 3  # of its 6 links a spanning tree keeps 3
     assert_same_as_skan(block)
     border = np.zeros((6, 6), bool)
-    border[0, :] = border[:, 0] = True         # lines on the image border, meeting at a corner
+    border[0, :] = border[:, 0] = True  # lines on the image border, meeting at a corner
     assert_same_as_skan(border)
     yy, xx = np.mgrid[:24, :24]
     ring = skeletonize(np.abs(np.hypot(yy - 11.5, xx - 11.5) - 7) < 2)  # an isolated loop
-    ring[0, 23] = True                         # and an isolated pixel (no path)
+    ring[0, 23] = True  # and an isolated pixel (no path)
     got = skeleton_paths(ring)
     assert got.n_paths == 1 and got.path(0)[0] == got.path(0)[-1]
     assert_same_as_skan(ring)

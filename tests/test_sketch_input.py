@@ -39,13 +39,13 @@ def _variants(g: np.ndarray) -> dict[str, bytes]:
     h, w = g.shape
     rgba = np.zeros((h, w, 4), np.uint8)
     rgba[..., 3] = 255 - g  # black ink whose alpha is its darkness, transparent paper
-    yy, xx = np.mgrid[0:h * 4, 0:w * 4]
+    yy, xx = np.mgrid[0 : h * 4, 0 : w * 4]
     paper = 0.5 + 0.3 * xx / (w * 4) + 0.1 * yy / (h * 4)  # a photo: grey paper, a light gradient
     photo = (cv2.resize(g, (w * 4, h * 4), interpolation=cv2.INTER_LINEAR) / 255.0 * paper * 255).astype(np.uint8)
     canvas = np.full((900, 1200), 255, np.uint8)
-    canvas[40:40 + 2 * h, 800:800 + 2 * w] = cv2.resize(g, (2 * w, 2 * h))
+    canvas[40 : 40 + 2 * h, 800 : 800 + 2 * w] = cv2.resize(g, (2 * w, 2 * h))
     wide = np.full((h, 3 * w), 255, np.uint8)
-    wide[:, 10:10 + w] = g
+    wide[:, 10 : 10 + w] = g
     marker = cv2.erode(cv2.resize(g, (w * 4, h * 4)), np.ones((9, 9), np.uint8))
     return {
         "transparent PNG": _png(rgba),
@@ -108,8 +108,11 @@ def test_framing_is_kept() -> None:
     assert measured.extent == pytest.approx(0.5, abs=0.03)
 
 
-@pytest.mark.parametrize("image", [np.full((300, 200), 255, np.uint8), np.full((64, 64), 30, np.uint8),
-                                   np.full((100, 100), 128, np.uint8)], ids=["white", "black", "grey"])
+@pytest.mark.parametrize(
+    "image",
+    [np.full((300, 200), 255, np.uint8), np.full((64, 64), 30, np.uint8), np.full((100, 100), 128, np.uint8)],
+    ids=["white", "black", "grey"],
+)
 def test_blank_image_is_a_clear_error(image: np.ndarray) -> None:
     with pytest.raises(SketchError, match="no drawing found"):
         normalize_sketch(_png(image), SIZE, name="blank.png")
@@ -152,10 +155,15 @@ def test_predictions_of_person_like_variants_stay_with_the_clean_sketch(tmp_path
 
     clean = points(load_sketches([path["clean"]], SIZE).tensor)
     between = dist(clean, points(load_sketches([path["other"]], SIZE).tensor))
-    far = {n: round(dist(points(load_sketches([path[n]], SIZE).tensor), clean) / between, 3)
-           for n in _variants(knife)}
+    far = {n: round(dist(points(load_sketches([path[n]], SIZE).tensor), clean) / between, 3) for n in _variants(knife)}
     assert all(v <= 0.25 for v in far.values()), far
-    plain = lambda d: torch.from_numpy(1.0 - cv2.resize(cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_GRAYSCALE),  # noqa: E731
-                                                         (SIZE, SIZE)).astype(np.float32)[None, None, None] / 255.0)
+    plain = lambda d: torch.from_numpy(
+        1.0
+        - cv2.resize(
+            cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_GRAYSCALE),  # noqa: E731
+            (SIZE, SIZE),
+        ).astype(np.float32)[None, None, None]
+        / 255.0
+    )
     for name in ("transparent PNG", "inverted"):
         assert dist(points(plain(files[name])), clean) > 0.25 * between, name

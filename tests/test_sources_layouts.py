@@ -10,10 +10,10 @@ import pytest
 from pipeline.core.records import ModelRef
 from pipeline.sources.layouts import (
     SHAPENET_SYNSETS,
+    ModelIdClash,
     detect_layout,
     iter_models,
     list_categories,
-    ModelIdClash,
     list_models,
 )
 

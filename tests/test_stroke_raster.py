@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from augment.stroke_raster import EDGE, deposit, densify, half_widths
+from augment.stroke_raster import EDGE, densify, deposit, half_widths
 
 
 def test_densify_spacing_ends_and_duplicates():
-    strokes = [np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [10.0, 5.0]]),  # duplicate dropped
-               np.array([[3.0, 4.0]]),                                       # one point stays one
-               np.zeros((0, 2))]                                             # empty stays empty
+    strokes = [
+        np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [10.0, 5.0]]),  # duplicate dropped
+        np.array([[3.0, 4.0]]),  # one point stays one
+        np.zeros((0, 2)),
+    ]  # empty stays empty
     pts, starts, arc = densify(strokes, 1.0)
     assert starts.tolist() == [0, 16, 17, 17]
     first = pts[:16]
@@ -50,7 +52,6 @@ def test_deposit_covers_a_capsule_once_per_stroke():
     deposit(once, tooth, hairpin, np.array([0, 3]), np.full(3, 3.0), np.array([0.6]), 0.0)
     assert np.array_equal(once, dark)
     twice = canvas()
-    deposit(twice, tooth, np.concatenate([line, line]), np.array([0, 2, 4]), np.full(4, 3.0),
-            np.array([0.6, 0.6]), 0.0)
+    deposit(twice, tooth, np.concatenate([line, line]), np.array([0, 2, 4]), np.full(4, 3.0), np.array([0.6, 0.6]), 0.0)
     assert np.allclose(twice[covered], 0.6 + 0.6 * 0.4)
     assert 3.0 + EDGE < 4.0

@@ -180,8 +180,11 @@ def test_bad_templates_raise_named_errors(tmp_path):
 
 
 def test_active_patches_follow_optional_and_closing_parts(tmp_path):
-    t = dataclasses.replace(junction_template(), closing_patches={"right": [1]},  # stand-in: patch 1 only while "right" is off
-                            part_groups={"body": ["a", "b"], "side": ["c"]})
+    t = dataclasses.replace(
+        junction_template(),
+        closing_patches={"right": [1]},  # stand-in: patch 1 only while "right" is off
+        part_groups={"body": ["a", "b"], "side": ["c"]},
+    )
     assert t.part_names == ["right"]
     assert t.active_patches() == [0, 2] and t.active_patches({"right": True}) == [0, 2]
     assert t.active_patches({"right": False}) == [0, 1]

@@ -7,12 +7,20 @@ import pytest
 
 from train.templates.build import DATA_DIR
 from train.templates.checks import closed_manifold_problems, euler_characteristic, junction_errors, self_intersections
-from train.templates.template import JunctionPoint, load_template_file
 from train.templates.from_cuboids import TemplateSettings, template_from_boxes
-from train.templates.lattice import Box, boundary_quads, build_lattice, edge_use_counts, euler_characteristic as quad_euler
+from train.templates.lattice import (
+    Box,
+    boundary_quads,
+    build_lattice,
+    edge_use_counts,
+)
+from train.templates.lattice import (
+    euler_characteristic as quad_euler,
+)
 from train.templates.median import chamfer_matrix, median_index
 from train.templates.merge import merge_quads, rects_from_quads
-from train.templates.part_boxes import WALL, BOTTOM, hollow_box, handle_loop
+from train.templates.part_boxes import BOTTOM, WALL, handle_loop, hollow_box
+from train.templates.template import JunctionPoint, load_template_file
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
 
@@ -85,9 +93,13 @@ def test_merging_reduces_faces_and_keeps_the_surface():
     # same point set: every original quad lies inside exactly one merged rectangle
     for q in before:
         hosts = [
-            r for r in ps.rects.values()
+            r
+            for r in ps.rects.values()
             if (r.axis, r.sign, r.k, r.label) == (q.axis, q.sign, q.k, q.label)
-            and r.b0 <= q.b0 and q.b1 <= r.b1 and r.c0 <= q.c0 and q.c1 <= r.c1
+            and r.b0 <= q.b0
+            and q.b1 <= r.b1
+            and r.c0 <= q.c0
+            and q.c1 <= r.c1
         ]
         assert len(hosts) == 1
 
@@ -184,8 +196,11 @@ def _combination_problems(tpl, alpha=4.0):
 
 def test_optional_part_gets_closing_patches_and_every_combination_is_closed():
     # a body with a pod hanging under it (an airplane engine) and a knob on top of the pod
-    boxes = [B("body", [-1, 0, -0.3], [1, 0.4, 0.3]), B("pod", [0.3, -0.5, -0.2], [0.7, 0.1, 0.2]),
-             B("knob", [0.4, -0.7, -0.1], [0.6, -0.4, 0.1])]  # fmt: skip
+    boxes = [
+        B("body", [-1, 0, -0.3], [1, 0.4, 0.3]),
+        B("pod", [0.3, -0.5, -0.2], [0.7, 0.1, 0.2]),
+        B("knob", [0.4, -0.7, -0.1], [0.6, -0.4, 0.1]),
+    ]
     tpl = template_from_boxes(boxes, "pod", TemplateSettings(snap_tol=1e-3, optional_labels=("pod", "knob")))
     assert set(tpl.optional_parts) == {"pod", "knob"} and set(tpl.closing_patches) == {"pod", "knob"}
     closing = tpl.closing_patches["pod"]
@@ -197,8 +212,11 @@ def test_optional_part_gets_closing_patches_and_every_combination_is_closed():
     for combo, problems, report in combos:
         assert problems == [] and report["boundary_edges"] == 0 and report["watertight"], combo
     # without the closing patches the pod's removal leaves a hole (what exports did before)
-    no_pod = [i for i in range(tpl.num_patches) if i not in tpl.optional_parts["pod"] + tpl.optional_parts["knob"]
-              and i not in closing]  # fmt: skip
+    no_pod = [
+        i
+        for i in range(tpl.num_patches)
+        if i not in tpl.optional_parts["pod"] + tpl.optional_parts["knob"] and i not in closing
+    ]
     assert closed_manifold_problems(tpl, no_pod) != []
 
 
@@ -228,7 +246,11 @@ def test_patch_budget_picks_a_closed_template_within_the_budget():
     pick = within_budget(cands, budget)
     assert pick.patches <= budget < full.num_patches
     assert closed_manifold_problems(pick.template) == []
-    exact = next(c for c in cands if c.coarsening.snap_tol == 1e-3 and c.coarsening.min_volume == 0 and not c.coarsening.merge_labels)
+    exact = next(
+        c
+        for c in cands
+        if c.coarsening.snap_tol == 1e-3 and c.coarsening.min_volume == 0 and not c.coarsening.merge_labels
+    )
     assert exact.patches == full.num_patches and exact.chamfer <= pick.chamfer
     assert exact.chamfer == pytest.approx(template_chamfer(full, target, np.random.default_rng([0, 7919])))
     front = pareto(cands)
@@ -239,11 +261,22 @@ def test_patch_budget_picks_a_closed_template_within_the_budget():
 def test_coarsening_drops_only_small_optional_parts():
     from train.templates.budget import Coarsening, coarsen_boxes
 
-    boxes = [B("body", [0, 0, 0], [4, 1, 1]), B("fin", [0, 1, 0], [0.3, 1.3, 0.1]), B("pod", [1, -0.2, 0], [1.2, 0, 0.2]),
-             B("tank", [2, -1, 0], [3, 0, 1])]  # fmt: skip
-    out = coarsen_boxes(boxes, Coarsening(0.01, 0.05, merge_labels=True), keep=["pod", "tank"], droppable=["pod", "tank"])
+    boxes = [
+        B("body", [0, 0, 0], [4, 1, 1]),
+        B("fin", [0, 1, 0], [0.3, 1.3, 0.1]),
+        B("pod", [1, -0.2, 0], [1.2, 0, 0.2]),
+        B("tank", [2, -1, 0], [3, 0, 1]),
+    ]
+    out = coarsen_boxes(
+        boxes, Coarsening(0.01, 0.05, merge_labels=True), keep=["pod", "tank"], droppable=["pod", "tank"]
+    )
     assert [b.label for b in out] == ["body", "body", "tank"]  # the tiny fin stays (required), relabelled
-    assert [b.label for b in coarsen_boxes(boxes, Coarsening(0.01, 0.0), ["pod", "tank"], ["pod", "tank"])] == ["body", "fin", "pod", "tank"]
+    assert [b.label for b in coarsen_boxes(boxes, Coarsening(0.01, 0.0), ["pod", "tank"], ["pod", "tank"])] == [
+        "body",
+        "fin",
+        "pod",
+        "tank",
+    ]
 
 
 def test_a_thin_box_snapped_onto_the_last_grid_line_keeps_its_cells():

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from pipeline.sources.part_names import map_name, normalize_name
+from pipeline.sources.segmentation import read_segmentation
 from train.templates.checks import conforming_mesh, part_combinations
 from train.templates.cuboid_file import CuboidFileError, file_models, read_cuboid_file
 from train.templates.lattice import Box
 from train.templates.mesh_boxes import PartSettings, merge_coincident, model_boxes, part_boxes, source_models
-from pipeline.sources.part_names import map_name, normalize_name
-from pipeline.sources.segmentation import read_segmentation
 from train.templates.symmetry import mirror_pairs
 from train.templates.user import TemplateInputError, UserSettings, build_user_template
 
@@ -46,6 +46,7 @@ def assert_mirror_symmetric(tpl):
 
 # ---- cuboid files -------------------------------------------------------------------------
 
+
 def test_example_cuboid_file_gives_a_closed_symmetric_template_with_optional_arms():
     cf = read_cuboid_file(EXAMPLE)
     assert cf.category == "chair" and len(cf.models) == 1
@@ -65,16 +66,26 @@ def _write(tmp_path: Path, text: str, name: str = "c.yaml") -> Path:
     return p
 
 
-@pytest.mark.parametrize("text, line, words", [
-    ("cuboids:\n  - {label: a, center: [0, 0, 0], size: [1, 1, 1]}\n  - {label: b, center: [0, 1, 0], size: [1, 0, 1]}\n",
-     3, "zero or negative size along y"),
-    ("cuboids:\n  - label: a\n    center: [0, 0, 0]\n    sise: [1, 1, 1]\n", 4, "unknown key 'sise'"),
-    ("symmetry: auto\ncolour: red\ncuboids: []\n", 2, "unknown key 'colour'"),
-    ("cuboids:\n  - {label: a, center: [0, 0, 0], size: [1, 1, 1], rotation: [0, 30, 0]}\n", 2, "rotated cuboids"),
-    ('{"cuboids": [\n {"label": "a", "min": [0, 0, 0], "max": [1, 1, 1], "id": "p", "mirror": "q"},\n'
-     ' {"label": "a", "min": [3, 0, 0], "max": [4, 2, 1], "id": "q"}]}\n', 2, "not mirror images"),
-    ("cuboids:\n  - {label: a, center: [0, 0], size: [1, 1, 1]}\n", 2, "needs 3 numbers"),
-])
+@pytest.mark.parametrize(
+    "text, line, words",
+    [
+        (
+            "cuboids:\n  - {label: a, center: [0, 0, 0], size: [1, 1, 1]}\n  - {label: b, center: [0, 1, 0], size: [1, 0, 1]}\n",
+            3,
+            "zero or negative size along y",
+        ),
+        ("cuboids:\n  - label: a\n    center: [0, 0, 0]\n    sise: [1, 1, 1]\n", 4, "unknown key 'sise'"),
+        ("symmetry: auto\ncolour: red\ncuboids: []\n", 2, "unknown key 'colour'"),
+        ("cuboids:\n  - {label: a, center: [0, 0, 0], size: [1, 1, 1], rotation: [0, 30, 0]}\n", 2, "rotated cuboids"),
+        (
+            '{"cuboids": [\n {"label": "a", "min": [0, 0, 0], "max": [1, 1, 1], "id": "p", "mirror": "q"},\n'
+            ' {"label": "a", "min": [3, 0, 0], "max": [4, 2, 1], "id": "q"}]}\n',
+            2,
+            "not mirror images",
+        ),
+        ("cuboids:\n  - {label: a, center: [0, 0], size: [1, 1, 1]}\n", 2, "needs 3 numbers"),
+    ],
+)
 def test_bad_cuboid_file_names_the_line(tmp_path, text, line, words):
     path = _write(tmp_path, text, "c.json" if text.startswith("{") else "c.yaml")
     with pytest.raises(CuboidFileError) as err:
@@ -89,8 +100,11 @@ def test_json_cuboid_file_with_exponent_numbers(tmp_path):
 
 
 def _table(seat_w: float, lamp: bool) -> str:
-    legs = "".join(f"      - {{label: leg, center: [{sx * (seat_w / 2 - 0.05)}, 0.35, {sz * 0.3}], size: [0.1, 0.7, 0.1]}}\n"
-                   for sx in (-1, 1) for sz in (-1, 1))
+    legs = "".join(
+        f"      - {{label: leg, center: [{sx * (seat_w / 2 - 0.05)}, 0.35, {sz * 0.3}], size: [0.1, 0.7, 0.1]}}\n"
+        for sx in (-1, 1)
+        for sz in (-1, 1)
+    )
     extra = "      - {label: shelf, center: [0, 0.2, 0], size: [%g, 0.05, 0.5]}\n" % (seat_w - 0.2) if lamp else ""
     return f"      - {{label: top, center: [0, 0.75, 0], size: [{seat_w}, 0.1, 0.8]}}\n" + legs + extra
 
@@ -98,7 +112,8 @@ def _table(seat_w: float, lamp: bool) -> str:
 def test_several_models_median_and_presence(tmp_path):
     text = "models:\n" + "".join(
         f"  - id: {mid}\n    cuboids:\n" + _table(w, shelf)
-        for mid, w, shelf in (("narrow", 0.8, False), ("mid", 1.0, True), ("wide", 1.25, True), ("wider", 1.4, False)))
+        for mid, w, shelf in (("narrow", 0.8, False), ("mid", 1.0, True), ("wide", 1.25, True), ("wider", 1.4, False))
+    )
     models = file_models(read_cuboid_file(_write(tmp_path, text)))
     res = build_user_template(models, "table")
     sums = res.chamfer_sums
@@ -120,7 +135,8 @@ def test_several_models_median_and_presence(tmp_path):
 def test_optional_part_missing_from_the_median_is_borrowed(tmp_path):
     text = "models:\n" + "".join(
         f"  - id: {mid}\n    cuboids:\n" + _table(w, shelf)
-        for mid, w, shelf in (("a", 0.95, False), ("b", 1.0, False), ("c", 1.05, False), ("d", 1.5, True)))
+        for mid, w, shelf in (("a", 0.95, False), ("b", 1.0, False), ("c", 1.05, False), ("d", 1.5, True))
+    )
     models = file_models(read_cuboid_file(_write(tmp_path, text)))
     res = build_user_template(models, "table")
     sums = res.chamfer_sums
@@ -133,23 +149,31 @@ def test_optional_part_missing_from_the_median_is_borrowed(tmp_path):
 
 
 def test_asymmetric_cuboids_get_no_symmetry_plane(tmp_path):
-    text = ("cuboids:\n  - {label: body, min: [0, 0, 0], max: [2, 1, 1]}\n"
-            "  - {label: arm, min: [1.5, 1, 0], max: [2, 2, 0.3]}\n")
+    text = (
+        "cuboids:\n  - {label: body, min: [0, 0, 0], max: [2, 1, 1]}\n"
+        "  - {label: arm, min: [1.5, 1, 0], max: [2, 2, 0.3]}\n"
+    )
     res = build_user_template(file_models(read_cuboid_file(_write(tmp_path, text))), "crane")
     assert res.template.symmetry is None and "symmetry" not in res.template.regularizers
     assert not res.symmetric
     assert_closed_for_every_combination(res.template)
     lo = np.array([p.xyz for p in res.template.points if hasattr(p, "xyz")])
-    assert lo[:, 0].max() > 0.5 and lo[:, 0].min() < -0.5  # not mirrored into a symmetric shape: the arm stays on one side
-    forced = build_user_template(file_models(read_cuboid_file(_write(tmp_path, text))), "crane", UserSettings(symmetry="x"))
+    assert (
+        lo[:, 0].max() > 0.5 and lo[:, 0].min() < -0.5
+    )  # not mirrored into a symmetric shape: the arm stays on one side
+    forced = build_user_template(
+        file_models(read_cuboid_file(_write(tmp_path, text))), "crane", UserSettings(symmetry="x")
+    )
     assert_mirror_symmetric(forced.template)
 
 
 def test_hollow_part_and_budget(tmp_path):
-    text = ("hollow:\n  basin: {wall: 0.2, bottom: 0.2}\ncuboids:\n"
-            "  - {label: basin, center: [0, 0.5, 0], size: [2, 1, 1]}\n"
-            "  - {label: foot, center: [0.8, -0.05, 0.3], size: [0.2, 0.1, 0.2], mirror: true}\n"
-            "  - {label: foot, center: [0.8, -0.05, -0.3], size: [0.2, 0.1, 0.2], mirror: true}\n")
+    text = (
+        "hollow:\n  basin: {wall: 0.2, bottom: 0.2}\ncuboids:\n"
+        "  - {label: basin, center: [0, 0.5, 0], size: [2, 1, 1]}\n"
+        "  - {label: foot, center: [0.8, -0.05, 0.3], size: [0.2, 0.1, 0.2], mirror: true}\n"
+        "  - {label: foot, center: [0.8, -0.05, -0.3], size: [0.2, 0.1, 0.2], mirror: true}\n"
+    )
     cf = read_cuboid_file(_write(tmp_path, text))
     assert cf.hollow == {"basin": (0.2, 0.2)}
     full = build_user_template(file_models(cf), "tub", UserSettings(hollow=cf.hollow))
@@ -165,6 +189,7 @@ def test_hollow_part_and_budget(tmp_path):
 
 # ---- meshes ----------------------------------------------------------------------------------
 
+
 def box_mesh(lo, hi) -> trimesh.Trimesh:
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
@@ -173,12 +198,18 @@ def box_mesh(lo, hi) -> trimesh.Trimesh:
 def chair_parts(width: float = 1.0, arms: bool = False) -> list[tuple[str, trimesh.Trimesh]]:
     w = width / 2
     # parts overlap or touch without sharing vertices, as separately modelled parts do
-    parts = [("Seat", box_mesh([-w, 0.4, -0.5], [w, 0.5, 0.5])), ("Back", box_mesh([0.02 - w, 0.45, -0.48], [w - 0.02, 1.3, -0.38]))]
+    parts = [
+        ("Seat", box_mesh([-w, 0.4, -0.5], [w, 0.5, 0.5])),
+        ("Back", box_mesh([0.02 - w, 0.45, -0.48], [w - 0.02, 1.3, -0.38])),
+    ]
     for i, (sx, sz) in enumerate(((-1, -1), (1, -1), (-1, 1), (1, 1))):
         x, z = sx * (w - 0.08), sz * 0.42
         parts.append((f"Leg.{i:03d}", box_mesh([x - 0.05, 0, z - 0.05], [x + 0.05, 0.4, z + 0.05])))
     if arms:
-        parts += [(f"arm_{s}", box_mesh([sx * w - 0.05, 0.5, -0.4], [sx * w + 0.05, 0.8, 0.4])) for s, sx in (("l", -1), ("r", 1))]
+        parts += [
+            (f"arm_{s}", box_mesh([sx * w - 0.05, 0.5, -0.4], [sx * w + 0.05, 0.8, 0.4]))
+            for s, sx in (("l", -1), ("r", 1))
+        ]
     return parts
 
 
@@ -195,7 +226,12 @@ def write_obj(path: Path, parts, groups: bool = True) -> None:
 
 
 def chair_folder(root: Path, groups: bool = True) -> Path:
-    for mid, width, arms in (("a_narrow", 0.8, False), ("b_mid", 1.0, True), ("c_wide", 1.1, True), ("d_widest", 1.5, False)):
+    for mid, width, arms in (
+        ("a_narrow", 0.8, False),
+        ("b_mid", 1.0, True),
+        ("c_wide", 1.1, True),
+        ("d_widest", 1.5, False),
+    ):
         write_obj(root / "chair" / f"{mid}.obj", chair_parts(width, arms), groups)
     return root
 
@@ -237,7 +273,9 @@ def test_components_drop_tiny_and_merge_coincident():
     assert len(boxes) == 2  # the speck is dropped, the inner shell merged into the outer
     thin = min(boxes, key=lambda b: (b.hi - b.lo).min())
     assert (thin.hi - thin.lo).min() == pytest.approx(0.02)  # the one-sided panel thickened
-    assert len(merge_coincident([Box("a", np.zeros(3), np.ones(3)), Box("b", np.zeros(3), np.ones(3))], 0.5)) == 2  # labels differ
+    assert (
+        len(merge_coincident([Box("a", np.zeros(3), np.ones(3)), Box("b", np.zeros(3), np.ones(3))], 0.5)) == 2
+    )  # labels differ
 
 
 def test_inconsistent_labels_name_the_model_and_a_part_map_fixes_them(tmp_path):
@@ -279,9 +317,11 @@ def test_gltf_nodes_ply_labels_and_points_file_segment_a_mesh(tmp_path):
 
     whole = trimesh.util.concatenate([m for _, m in parts])
     labels = np.concatenate([np.full(len(m.faces), i if i < 2 else 2) for i, (_, m) in enumerate(parts)])
-    header = (f"ply\nformat ascii 1.0\nelement vertex {len(whole.vertices)}\nproperty float x\nproperty float y\n"
-              f"property float z\nelement face {len(whole.faces)}\nproperty list uchar int vertex_indices\n"
-              "property int label\nend_header\n")
+    header = (
+        f"ply\nformat ascii 1.0\nelement vertex {len(whole.vertices)}\nproperty float x\nproperty float y\n"
+        f"property float z\nelement face {len(whole.faces)}\nproperty list uchar int vertex_indices\n"
+        "property int label\nend_header\n"
+    )
     body = "".join(f"{x} {y} {z}\n" for x, y, z in whole.vertices)
     body += "".join(f"3 {a} {b} {c} {lab}\n" for (a, b, c), lab in zip(whole.faces, labels))
     (tmp_path / "p.ply").write_text(header + body)
@@ -294,11 +334,23 @@ def test_gltf_nodes_ply_labels_and_points_file_segment_a_mesh(tmp_path):
     (tmp_path / "s.pts").write_text("".join(f"{x} {y} {z}\n" for x, y, z in pts[0] * 3 + 5))
     (tmp_path / "s.seg").write_text("".join(f"{labels[i] + 1}\n" for i in pts[1]))
     mb = model_boxes(tmp_path / "s.obj", "s", part_map={"seg1": "seat", "seg2": "back", "seg3": "leg"})
-    assert mb.origin == "points file" and sorted(b.label for b in mb.boxes) == ["back", "leg", "leg", "leg", "leg", "seat"]
+    assert mb.origin == "points file" and sorted(b.label for b in mb.boxes) == [
+        "back",
+        "leg",
+        "leg",
+        "leg",
+        "leg",
+        "seat",
+    ]
 
 
 def test_part_names_normalize_exporter_decorations():
-    assert [normalize_name(s) for s in ("Leg.003", "Chair Back_L", "wing_left", "Seat 2")] == ["leg", "chair_back", "wing", "seat"]
+    assert [normalize_name(s) for s in ("Leg.003", "Chair Back_L", "wing_left", "Seat 2")] == [
+        "leg",
+        "chair_back",
+        "wing",
+        "seat",
+    ]
     assert map_name("seg3", {"seg3": "leg"}, normalize=False) == "leg"
     assert map_name("Screw.012", {"screw*": None}) is None
 
@@ -314,14 +366,22 @@ def test_mirror_pairs_detect_left_right_boxes():
 
 # ---- command line ------------------------------------------------------------------------------
 
+
 def test_build_help_explains_the_three_inputs_and_the_output(capsys):
     from train.templates.__main__ import main
 
     with pytest.raises(SystemExit):
         main(["build", "--help"])
     text = capsys.readouterr().out
-    for words in ("--categories", "--source DIR --category NAME", "--cuboids FILE", "./templates/", "--shipped",
-                  "connected components", "OBJ g/o groups"):
+    for words in (
+        "--categories",
+        "--source DIR --category NAME",
+        "--cuboids FILE",
+        "./templates/",
+        "--shipped",
+        "connected components",
+        "OBJ g/o groups",
+    ):
         assert words in text
 
 
@@ -342,6 +402,7 @@ def test_cli_writes_user_templates_to_the_working_folder(tmp_path, monkeypatch):
 
 # ---- the Sweet Home 3D fetch script's conversions (no download) --------------------------------
 
+
 def _fetch_module():
     import importlib.util
 
@@ -357,13 +418,17 @@ def _fetch_module():
 
 def test_sweethome3d_catalog_and_placement():
     mod = _fetch_module()
-    props = mod.read_properties("# comment\nname#3=Caf\\u00e9 chair\nmodel#3=/a/b.obj\nwidth#3=40\\\n  .5\nheight#3=90\n")
+    props = mod.read_properties(
+        "# comment\nname#3=Caf\\u00e9 chair\nmodel#3=/a/b.obj\nwidth#3=40\\\n  .5\nheight#3=90\n"
+    )
     assert props == {"name#3": "Café chair", "model#3": "/a/b.obj", "width#3": "40.5", "height#3": "90"}
     v, groups = mod.read_obj(b"v 0 0 0\nv 2 0 0\nv 2 0 1\nv 0 0 1\ng seat\nf 1 2 3 4\ng leg\nf -4 -3 -2\n")
     assert [(n, len(f)) for n, f in groups] == [("seat", 2), ("leg", 1)] and groups[1][1] == [[0, 1, 2]]
     # a model lying along z, rotated to stand along y, then scaled to the catalog's cm
-    placed = mod.place(np.array([[0, 0, 0], [1, 0, 0], [0, 0, 4.0]]),
-                       {"modelRotation": "1 0 0 0 0 1 0 -1 0", "width": "50", "height": "80", "depth": "0"})
+    placed = mod.place(
+        np.array([[0, 0, 0], [1, 0, 0], [0, 0, 4.0]]),
+        {"modelRotation": "1 0 0 0 0 1 0 -1 0", "width": "50", "height": "80", "depth": "0"},
+    )
     ext = placed.max(0) - placed.min(0)
     assert ext[0] == pytest.approx(50) and ext[1] == pytest.approx(80)
 
@@ -372,8 +437,11 @@ def test_cli_refuses_to_write_user_templates_into_the_package(tmp_path, monkeypa
     from train.templates.__main__ import main
 
     monkeypatch.chdir(tmp_path)
-    for argv in (["build", "--cuboids", str(EXAMPLE), "--shipped"], ["build", "--category", "chair"],
-                 ["build", "--cuboids", str(EXAMPLE), "--categories", "mug"]):
+    for argv in (
+        ["build", "--cuboids", str(EXAMPLE), "--shipped"],
+        ["build", "--category", "chair"],
+        ["build", "--cuboids", str(EXAMPLE), "--categories", "mug"],
+    ):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2

@@ -29,13 +29,22 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from test_shards import make_model_dirs  # noqa: E402
 
-from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.core.atomic import write_json  # noqa: E402
 from pipeline.dataset.manifest import read_manifest  # noqa: E402
-from pipeline.dataset.shards import (LOCK_FILE, OWNED_FILE, CategoryBusy, NotOurFiles, ShardSettings,  # noqa: E402
-                                     category_lock, list_shards, retire_category, write_category_shards)
+from pipeline.dataset.shards import (
+    LOCK_FILE,
+    OWNED_FILE,
+    CategoryBusy,
+    NotOurFiles,
+    ShardSettings,  # noqa: E402
+    category_lock,
+    list_shards,
+    retire_category,
+    write_category_shards,
+)
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
 from workflows.console import WIDTH, Console, summary  # noqa: E402
 from workflows.lifetime import die_with_parent  # noqa: E402
 from workflows.steps import gone_categories, too_many_failures  # noqa: E402
@@ -44,8 +53,9 @@ from workflows.validate import BuildParameterError  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 LUIGI = [str(ROOT / ".venv" / "bin" / "luigi"), "--module", "workflows", "BuildDataset", "--local-scheduler"]
 EMBREE = '{"backend": "embree"}'
-TINY = dict(models_per_category=0, views=1, variants=1, image_size=64, out_size=64, batch_size=2,
-            render_settings=EMBREE)
+TINY = dict(
+    models_per_category=0, views=1, variants=1, image_size=64, out_size=64, batch_size=2, render_settings=EMBREE
+)
 ST = ShardSettings(max_samples_per_shard=2)
 
 
@@ -68,6 +78,7 @@ def files(d: Path) -> dict[str, bytes]:
 
 
 # ---------------------------------------------------------------- 4: never delete what the build did not write
+
 
 @pytest.mark.parametrize("name", ["test-00007.tar", "train-00000.tar"], ids=["beside-ours", "in-our-place"])
 def test_users_shard_named_file_stops_the_write_untouched(tmp_path: Path, name: str) -> None:
@@ -135,6 +146,7 @@ def test_validation_names_users_file_before_anything_runs(tmp_path: Path) -> Non
 
 # ---------------------------------------------------------------- 6: a folder where a shard belongs
 
+
 def test_empty_folder_in_a_shards_place_is_replaced(tmp_path: Path) -> None:
     cat = tmp_path / "ds" / "mug"
     first = write_category_shards("mug", models(tmp_path), cat, ST, 0, "h")
@@ -160,6 +172,7 @@ def test_folder_with_files_in_a_shards_place_is_named(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- 8: two writers of one category folder
+
 
 def _write_in_child(root: str, n: int, out: "multiprocessing.Queue") -> None:
     try:
@@ -241,6 +254,7 @@ def test_stale_staging_goes_other_dot_folders_stay(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------- 5: a category the source lost
 
+
 def test_retire_removes_only_what_our_records_list(tmp_path: Path) -> None:
     cat = tmp_path / "ds" / "mug"
     write_category_shards("mug", models(tmp_path), cat, ST, 0, "h")
@@ -305,6 +319,7 @@ def test_other_sources_categories_are_kept(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------- 9: a build that built nothing fails
 
+
 @pytest.fixture(scope="module")
 def all_broken(tmp_path_factory) -> dict:
     """The `luigi` command on a folder whose every mesh is broken (no renderer runs)."""
@@ -313,8 +328,16 @@ def all_broken(tmp_path_factory) -> dict:
     src.mkdir(parents=True)
     (src / "cut.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")
     (src / "empty.obj").write_bytes(b"")
-    cmd = LUIGI + ["--source", str(root / "src"), "--models-per-category", "0", "--work-dir", str(root / "work"),
-                   "--dataset-dir", str(root / "ds")]
+    cmd = LUIGI + [
+        "--source",
+        str(root / "src"),
+        "--models-per-category",
+        "0",
+        "--work-dir",
+        str(root / "work"),
+        "--dataset-dir",
+        str(root / "ds"),
+    ]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     return {"root": root, "rc": r.returncode, "out": r.stdout + r.stderr}
 
@@ -330,8 +353,9 @@ def test_all_failed_category_fails_the_build_with_one_line(all_broken: dict) -> 
 def test_verify_fails_an_empty_category(all_broken: dict) -> None:
     ds = all_broken["root"] / "ds"
     assert verify_dataset(ds) == ["mug: no samples (2 of 2 models failed)"]
-    r = subprocess.run([sys.executable, "-m", "pipeline", "verify", str(ds)], cwd=ROOT, capture_output=True,
-                       text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "pipeline", "verify", str(ds)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
     assert r.returncode == 1, r.stdout
 
 
@@ -341,15 +365,31 @@ def test_max_failed_fraction_one_still_fails_an_empty_category(all_broken: dict)
     assert too_many_failures(s, ["mug"], 0.5) == ["mug: 2 of 2 models failed (100%) > --max-failed-fraction 0.5"]
 
 
-LONG = ("repair failed verification: " + " ".join(f"word{i:03d}" for i in range(40))
-        + " /a/very/long/path/that/must/stay/whole/" + "x" * 150 + ".obj")
+LONG = (
+    "repair failed verification: "
+    + " ".join(f"word{i:03d}" for i in range(40))
+    + " /a/very/long/path/that/must/stay/whole/"
+    + "x" * 150
+    + ".obj"
+)
 
 
 def test_long_failure_reason_is_wrapped_whole(tmp_path: Path) -> None:
     ds = tmp_path / "ds"
-    write_json(ds / "manifest.json", {"checksum": "0" * 64, "categories": {"mug": {
-        "models_built": 1, "models_failed": 1, "splits": {s: {"samples": int(s == "train")} for s in ("train", "val", "test")},
-        "failed": [{"model_id": "bad", "stage": "prepare", "reason": LONG}]}}})
+    write_json(
+        ds / "manifest.json",
+        {
+            "checksum": "0" * 64,
+            "categories": {
+                "mug": {
+                    "models_built": 1,
+                    "models_failed": 1,
+                    "splits": {s: {"samples": int(s == "train")} for s in ("train", "val", "test")},
+                    "failed": [{"model_id": "bad", "stage": "prepare", "reason": LONG}],
+                }
+            },
+        },
+    )
     text = summary(BuildSettings(dataset_dir=ds), ["mug"])
     start = text.index("  failed mug/bad at prepare: ")
     block = text[start:].split("\nmanifest:")[0].splitlines()
@@ -369,7 +409,9 @@ def test_failed_task_line_is_wrapped_whole() -> None:
             return "CategoryShards"
 
     con._failed(Task(), RuntimeError(LONG))
-    assert " ".join(ln.strip() for ln in out.getvalue().splitlines()) == f"FAILED CategoryShards mug: RuntimeError: {LONG}"
+    assert (
+        " ".join(ln.strip() for ln in out.getvalue().splitlines()) == f"FAILED CategoryShards mug: RuntimeError: {LONG}"
+    )
 
 
 _WARN_BUILD = """
@@ -385,9 +427,27 @@ sys.exit(main(sys.argv[1:]))
 
 def test_library_warnings_go_to_the_log_not_the_console(all_broken: dict, tmp_path: Path) -> None:
     root = all_broken["root"]
-    r = subprocess.run([sys.executable, "-c", _WARN_BUILD, "--source", str(root / "src"), "--models-per-category", "0",
-                        "--work-dir", str(tmp_path / "work"), "--dataset-dir", str(tmp_path / "ds"), "--workers", "1"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _WARN_BUILD,
+            "--source",
+            str(root / "src"),
+            "--models-per-category",
+            "0",
+            "--work-dir",
+            str(tmp_path / "work"),
+            "--dataset-dir",
+            str(tmp_path / "ds"),
+            "--workers",
+            "1",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 1  # nothing built
     assert "RuntimeWarning" not in r.stdout + r.stderr, r.stdout + r.stderr
     assert "RuntimeWarning: invalid value encountered in divide" in (tmp_path / "work" / "luigi.log").read_text()
@@ -401,7 +461,7 @@ def _session_alive(sid: int) -> list[str]:
             continue
         try:
             stat = (d / "stat").read_text()
-            fields = stat[stat.rindex(")") + 2:].split()
+            fields = stat[stat.rindex(")") + 2 :].split()
             if int(fields[3]) == sid and fields[0] != "Z":
                 out.append((d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"))
         except (OSError, ValueError):
@@ -415,12 +475,27 @@ def test_second_build_refused_by_luigis_lock_exits_non_zero(tmp_path: Path) -> N
     import luigi.lock
 
     box(tmp_path / "src" / "mug" / "a.obj", (1, 1, 1))
-    cmd = LUIGI + ["--source", str(tmp_path / "src"), "--render-settings", EMBREE, "--work-dir", str(tmp_path / "work"),
-                   "--dataset-dir", str(tmp_path / "ds"), "--lock-pid-dir", str(tmp_path / "locks")]
+    cmd = LUIGI + [
+        "--source",
+        str(tmp_path / "src"),
+        "--render-settings",
+        EMBREE,
+        "--work-dir",
+        str(tmp_path / "work"),
+        "--dataset-dir",
+        str(tmp_path / "ds"),
+        "--lock-pid-dir",
+        str(tmp_path / "locks"),
+    ]
     (tmp_path / "hang").mkdir()
     (tmp_path / "hang" / "sitecustomize.py").write_text("import time\ntime.sleep(120)\n")
-    first = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(tmp_path / "hang")},
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    first = subprocess.Popen(
+        cmd,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(tmp_path / "hang")},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         (tmp_path / "locks").mkdir()
         deadline = time.monotonic() + 10
@@ -441,6 +516,7 @@ def test_second_build_refused_by_luigis_lock_exits_non_zero(tmp_path: Path) -> N
 
 # ---------------------------------------------------------------- 8: killing the build kills its workers
 
+
 def test_die_with_parent_only_arms_forked_processes() -> None:
     assert die_with_parent() is False  # the test process itself (workers=1 builds run here)
     ctx = multiprocessing.get_context("fork")
@@ -458,9 +534,26 @@ def test_killing_the_luigi_process_ends_its_workers_and_blender(tmp_path: Path, 
 
     for i in range(4):
         generate("mug", i).write(tmp_path / "src" / "mug" / f"m{i}.obj")
-    cmd = LUIGI + ["--source", str(tmp_path / "src"), "--views", "4", "--variants", "1", "--image-size", "256",
-                   "--out-size", "64", "--batch-size", "2", "--workers", "2", "--work-dir", str(tmp_path / "work"),
-                   "--dataset-dir", str(tmp_path / "ds")]
+    cmd = LUIGI + [
+        "--source",
+        str(tmp_path / "src"),
+        "--views",
+        "4",
+        "--variants",
+        "1",
+        "--image-size",
+        "256",
+        "--out-size",
+        "64",
+        "--batch-size",
+        "2",
+        "--workers",
+        "2",
+        "--work-dir",
+        str(tmp_path / "work"),
+        "--dataset-dir",
+        str(tmp_path / "ds"),
+    ]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
@@ -486,15 +579,44 @@ def test_killing_the_luigi_process_ends_its_workers_and_blender(tmp_path: Path, 
 def test_two_luigi_builds_on_one_dataset_folder_both_succeed(tmp_path: Path) -> None:
     for name, ext in (("a", (1, 0.6, 0.4)), ("b", (0.4, 0.4, 1.2)), ("c", (1.0, 1.0, 0.3))):
         box(tmp_path / "src" / "mug" / f"{name}.obj", ext)
-    base = LUIGI + ["--source", str(tmp_path / "src"), "--render-settings", EMBREE, "--views", "1", "--variants", "1",
-                    "--image-size", "64", "--out-size", "64", "--batch-size", "1", "--no-lock",
-                    "--dataset-dir", str(tmp_path / "ds")]
-    procs = [subprocess.Popen(base + ["--work-dir", str(tmp_path / f"work{i}")], cwd=ROOT, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True) for i in range(2)]
+    base = LUIGI + [
+        "--source",
+        str(tmp_path / "src"),
+        "--render-settings",
+        EMBREE,
+        "--views",
+        "1",
+        "--variants",
+        "1",
+        "--image-size",
+        "64",
+        "--out-size",
+        "64",
+        "--batch-size",
+        "1",
+        "--no-lock",
+        "--dataset-dir",
+        str(tmp_path / "ds"),
+    ]
+    procs = [
+        subprocess.Popen(
+            base + ["--work-dir", str(tmp_path / f"work{i}")],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
     outs = [p.communicate(timeout=300)[0] for p in procs]
     assert [p.returncode for p in procs] == [0, 0], "\n".join(o[-3000:] for o in outs)
     assert verify_dataset(tmp_path / "ds") == []
-    r = subprocess.run(base[:-2] + ["--work-dir", str(tmp_path / "work0"), "--dataset-dir", str(tmp_path / "alone")],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        base[:-2] + ["--work-dir", str(tmp_path / "work0"), "--dataset-dir", str(tmp_path / "alone")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stdout[-3000:]
     assert files(tmp_path / "ds") == files(tmp_path / "alone")

@@ -19,15 +19,16 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from as_user import call_as  # noqa: E402
 
-from workflows.listing import current_listing, file_key, model_key  # noqa: E402
-from workflows.build_settings import BuildSettings  # noqa: E402
 from pipeline.dataset.verify import verify_dataset  # noqa: E402
 from pipeline.sources.mesh_io import gltf_external_files, load_mesh  # noqa: E402
 from workflows import BuildDataset  # noqa: E402
+from workflows.build_settings import BuildSettings  # noqa: E402
+from workflows.listing import current_listing, file_key, model_key  # noqa: E402
 
 EMBREE = '{"backend": "embree"}'
-TINY = dict(models_per_category=0, views=1, variants=1, image_size=64, out_size=64, batch_size=4,
-            render_settings=EMBREE)
+TINY = dict(
+    models_per_category=0, views=1, variants=1, image_size=64, out_size=64, batch_size=4, render_settings=EMBREE
+)
 
 
 def _params(src: Path, root: Path) -> dict:
@@ -70,6 +71,7 @@ def gltf_with_buffers(folder: Path, stem: str, extents=(1.0, 0.7, 0.5)) -> list[
 
 # ---------------------------------------------------------------- glTF external buffers
 
+
 def test_gltf_buffers_are_in_the_key(tmp_path: Path) -> None:
     src = tmp_path / "src"
     bins = gltf_with_buffers(src / "mug", "car")
@@ -107,10 +109,13 @@ def test_edited_gltf_buffer_rebuilds_the_model(tmp_path: Path) -> None:
     assert verify_dataset(tmp_path / "a" / "ds") == []
 
 
-@pytest.mark.parametrize("uri, words", [
-    ("gone.bin", "missing glTF buffer 'gone.bin'"),
-    ("../outside.bin", "missing glTF buffer '../outside.bin'"),  # never read from outside its folder
-])
+@pytest.mark.parametrize(
+    "uri, words",
+    [
+        ("gone.bin", "missing glTF buffer 'gone.bin'"),
+        ("../outside.bin", "missing glTF buffer '../outside.bin'"),  # never read from outside its folder
+    ],
+)
 def test_missing_or_escaping_buffer_fails_that_model_only(tmp_path: Path, uri: str, words: str) -> None:
     src = tmp_path / "src"
     bins = gltf_with_buffers(src / "mug", "car")
@@ -143,6 +148,7 @@ def test_obj_material_files_do_not_change_the_geometry(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- a permission fix re-runs
+
 
 def test_mode_is_part_of_the_cache_signature(tmp_path: Path, monkeypatch) -> None:
     """A failed read is never cached, and chmod alone (no new mtime) misses the cache."""
@@ -181,8 +187,8 @@ def _nobody() -> tuple[int, int] | None:
 def test_fixed_permission_rebuilds_the_model(tmp_path: Path) -> None:
     """A user lists and prepares a folder with a mode-000 file (it fails, permission denied),
     fixes the mode, and the next build builds it instead of reusing the failure."""
-    from workflows.listing import listed_models
     from pipeline.prepare.batch import prepare_batch
+    from workflows.listing import listed_models
 
     who = _nobody()
     root = Path(tempfile.mkdtemp(prefix="trust-keys-"))  # a folder "nobody" may write in
@@ -199,12 +205,14 @@ def test_fixed_permission_rebuilds_the_model(tmp_path: Path) -> None:
         def prepare_as_user() -> str:  # the build's first two steps (its renders need the venv)
             refs = listed_models(s, "mug")
             recs = prepare_batch(refs, s.stage_dir("prepare"), s.prepare_settings())
-            return json.dumps({r.model_id.rsplit("-", 1)[0]: rec.get("error", {}).get("reason", "ok")
-                               for r, rec in zip(refs, recs)})
+            return json.dumps(
+                {r.model_id.rsplit("-", 1)[0]: rec.get("error", {}).get("reason", "ok") for r, rec in zip(refs, recs)}
+            )
 
         assert json.loads(call_as(who, prepare_as_user)) == {
             "locked": "unreadable: permission denied (check the owner and mode of the file and its folders)",
-            "open": "ok"}
+            "open": "ok",
+        }
         (src / "mug" / "locked.obj").chmod(0o644)  # the fix: size, mtime and inode stay the same
         cats = build(src, root)
         assert cats["mug"]["failed"] == [] and cats["mug"]["models_built"] == 2
@@ -213,6 +221,7 @@ def test_fixed_permission_rebuilds_the_model(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- copies in one category
+
 
 def test_identical_files_are_one_model(tmp_path: Path, caplog) -> None:
     src = tmp_path / "src"
@@ -232,6 +241,7 @@ def test_identical_files_are_one_model(tmp_path: Path, caplog) -> None:
     assert cats["mug"]["models_built"] == 2 and cats["knife"]["models_built"] == 1
     assert [(f["model_id"], f["stage"], f["path"], f["reason"]) for f in cats["mug"]["failed"]] == [
         ("b", "source", "mug/b.obj", "duplicate of mug/a copy.obj (same content)"),
-        ("c", "source", "mug/c.obj", "duplicate of mug/a copy.obj (same content)")]
+        ("c", "source", "mug/c.obj", "duplicate of mug/a copy.obj (same content)"),
+    ]
     keys = sorted(k for sp in cats["mug"]["splits"].values() for sh in sp["shards"] for k in sh["keys"])
     assert keys == [f"mug_{first}", "mug_d"]

@@ -32,12 +32,23 @@ _ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]*")
 # Ids that are already safe stay as they are (procedural, ShapeNet, plain file names).
 SAFE = ("00000", "00099", "1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d", "_batches", "a.b", "Box-1", "keep")
 # File stems a user's folder can hold, one per kind of trouble.
-ODD = {"space": "my mug", "unicode": "tëst ü", "newline": "new\nline", "backslash": "back\\slash",
-       "braces": "br{1}ace", "long": "x" * 246, "windows": "CON", "schema": "manifest.json",
-       "hash": "frame#1", "dash": "-rf", "undecodable": "bad\udcffbyte"}
+ODD = {
+    "space": "my mug",
+    "unicode": "tëst ü",
+    "newline": "new\nline",
+    "backslash": "back\\slash",
+    "braces": "br{1}ace",
+    "long": "x" * 246,
+    "windows": "CON",
+    "schema": "manifest.json",
+    "hash": "frame#1",
+    "dash": "-rf",
+    "undecodable": "bad\udcffbyte",
+}
 
 
 # ---------------------------------------------------------------- the name rules
+
 
 @pytest.mark.parametrize("name", SAFE)
 def test_safe_ids_are_kept_unchanged(name: str) -> None:
@@ -80,6 +91,7 @@ def test_blender_never_gets_a_template_path(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------- builds of odd names
 
+
 def _box(path: Path, i: int) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     trimesh.creation.box(extents=(1.0, 0.5 + 0.03 * i, 0.4)).export(str(path))
@@ -96,8 +108,13 @@ def odd_build(tmp_path_factory) -> Path:
         _box(root / "src" / "mug" / f"{stem}.obj", i)
     for i, folder in enumerate(CATEGORY_FOLDERS):
         _box(root / "src" / folder / "a.obj", i)
-    task = BuildDataset(source=str(root / "src"), work_dir=str(root / "work"), dataset_dir=str(root / "ds"),
-                        render_settings=EMBREE, **TINY)
+    task = BuildDataset(
+        source=str(root / "src"),
+        work_dir=str(root / "work"),
+        dataset_dir=str(root / "ds"),
+        render_settings=EMBREE,
+        **TINY,
+    )
     assert luigi.build([task], local_scheduler=True, workers=1, log_level="WARNING")
     return root
 
@@ -141,9 +158,14 @@ def test_shapenet_and_registered_layouts_get_safe_ids_too(tmp_path: Path) -> Non
         (tmp_path / "sn" / "02691156" / folder / "models").mkdir(parents=True)
     ids = [r.model_id for r in list_models(str(tmp_path / "sn"), "airplane", None, 0, tmp_path / "w")]
     assert ids == ["1a2b3c", safe_component("odd {1} plane")]
-    layout = layouts.register_layout(layouts.Layout(
-        "odd-test", detect=lambda source: source == "odd-test", categories=lambda source: ["mug"],
-        models=lambda source, category, seed, work_dir, count: iter([ModelRef("mug", "a\\b", tmp_path, "odd")])))
+    layout = layouts.register_layout(
+        layouts.Layout(
+            "odd-test",
+            detect=lambda source: source == "odd-test",
+            categories=lambda source: ["mug"],
+            models=lambda source, category, seed, work_dir, count: iter([ModelRef("mug", "a\\b", tmp_path, "odd")]),
+        )
+    )
     try:
         assert [r.model_id for r in list_models("odd-test", "mug", None, 0, tmp_path)] == [safe_component("a\\b")]
     finally:
@@ -152,17 +174,28 @@ def test_shapenet_and_registered_layouts_get_safe_ids_too(tmp_path: Path) -> Non
 
 def test_rebuild_of_odd_names_has_nothing_to_do(odd_build: Path) -> None:
     before = {p: p.stat().st_mtime_ns for p in (odd_build / "ds").rglob("*") if p.is_file()}
-    task = BuildDataset(source=str(odd_build / "src"), work_dir=str(odd_build / "work"),
-                        dataset_dir=str(odd_build / "ds"), render_settings=EMBREE, **TINY)
+    task = BuildDataset(
+        source=str(odd_build / "src"),
+        work_dir=str(odd_build / "work"),
+        dataset_dir=str(odd_build / "ds"),
+        render_settings=EMBREE,
+        **TINY,
+    )
     assert task.complete()
     assert {p: p.stat().st_mtime_ns for p in (odd_build / "ds").rglob("*") if p.is_file()} == before
 
 
 # ---------------------------------------------------------------- preview of an untrusted manifest
 
+
 def _preview(ds: Path, out: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline", "preview", str(ds), "--out", str(out)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "pipeline", "preview", str(ds), "--out", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def _edit_manifest(ds: Path, edit) -> None:
@@ -176,7 +209,8 @@ def test_preview_of_odd_categories_writes_safe_names(odd_build: Path, tmp_path: 
     r = _preview(odd_build / "ds", tmp_path / "pv")
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "pv").iterdir()) == sorted(
-        f"{c}.png" for c in ["mug", *(safe_category(f) for f in CATEGORY_FOLDERS)])
+        f"{c}.png" for c in ["mug", *(safe_category(f) for f in CATEGORY_FOLDERS)]
+    )
 
 
 def test_preview_never_writes_outside_out(odd_build: Path, tmp_path: Path) -> None:
@@ -191,6 +225,7 @@ def test_preview_never_writes_outside_out(odd_build: Path, tmp_path: Path) -> No
         cats["mug/../mug"] = json.loads(json.dumps(cats["../../x"]))  # inside: read, written safely
         shards = [sh for s in cats[safe_category("my cat")]["splits"].values() for sh in s["shards"]]
         shards[0]["name"] = "../../../../etc/passwd"
+
     _edit_manifest(ds, edit)
     r = _preview(ds, out)
     assert r.returncode == 1
@@ -202,6 +237,7 @@ def test_preview_never_writes_outside_out(odd_build: Path, tmp_path: Path) -> No
 
 
 # ---------------------------------------------------------------- Freestyle (Blender)
+
 
 @pytest.mark.slow
 def test_freestyle_renders_names_with_braces_and_backslashes(tmp_path: Path) -> None:
@@ -226,8 +262,15 @@ def test_verify_never_reads_outside_the_dataset_folder(tmp_path: Path) -> None:
     ds.mkdir()
     (tmp_path / "secret").mkdir()
     (tmp_path / "secret" / "train-00000.tar").write_bytes(b"x")
-    entry = {"splits": {s: {"samples": 1, "shards": [{"name": "../secret/train-00000.tar", "bytes": 1,
-                                                       "sha256": "0", "samples": 1}]} for s in ("train", "val", "test")}}
+    entry = {
+        "splits": {
+            s: {
+                "samples": 1,
+                "shards": [{"name": "../secret/train-00000.tar", "bytes": 1, "sha256": "0", "samples": 1}],
+            }
+            for s in ("train", "val", "test")
+        }
+    }
     body = {"categories": {"../secret": entry, "mug": entry}}
     (ds / "manifest.json").write_text(json.dumps({**body, "checksum": content_checksum(body)}))
     problems = verify_dataset(ds)

@@ -55,17 +55,58 @@ def world(tmp_path_factory):
 
 
 def _settings(ds: Path, out: Path) -> dict:
-    return dict(dataset=str(ds), category="knife", template="sphere24", out=str(out), steps=2, batch_size=2,
-                workers=0, n_points=200, image_size=32, max_views=2, encoder_width=8, log_every=1,
-                checkpoint_every=100, device="cpu", weights=LossWeights(collision=0.0))
+    return dict(
+        dataset=str(ds),
+        category="knife",
+        template="sphere24",
+        out=str(out),
+        steps=2,
+        batch_size=2,
+        workers=0,
+        n_points=200,
+        image_size=32,
+        max_views=2,
+        encoder_width=8,
+        log_every=1,
+        checkpoint_every=100,
+        device="cpu",
+        weights=LossWeights(collision=0.0),
+    )
 
 
 def fit_argv(ds: Path, out: Path, *extra: str) -> list[str]:
     """``fit`` flags of a tiny CPU run like ``_settings``; ``extra`` flags override them."""
-    return ["fit", "--dataset", str(ds), "--category", "knife", "--template", "sphere24", "--out", str(out),
-            "--steps", "2", "--batch-size", "2", "--workers", "0", "--points", "200", "--image-size", "32",
-            "--max-views", "2", "--encoder-width", "8", "--device", "cpu", "--w-collision", "0", "--no-progress",
-            *extra]
+    return [
+        "fit",
+        "--dataset",
+        str(ds),
+        "--category",
+        "knife",
+        "--template",
+        "sphere24",
+        "--out",
+        str(out),
+        "--steps",
+        "2",
+        "--batch-size",
+        "2",
+        "--workers",
+        "0",
+        "--points",
+        "200",
+        "--image-size",
+        "32",
+        "--max-views",
+        "2",
+        "--encoder-width",
+        "8",
+        "--device",
+        "cpu",
+        "--w-collision",
+        "0",
+        "--no-progress",
+        *extra,
+    ]
 
 
 def cli_error(capsys, argv: list[str]) -> str:
@@ -87,6 +128,7 @@ def _evil_checkpoint(path: Path, marker: Path) -> Path:
 
 # ---------------------------------------------------------------- checkpoints never run code
 
+
 def test_every_command_refuses_a_checkpoint_that_would_run_code(world, tmp_path, capsys):
     marker = tmp_path / "MARKER"
     evil = _evil_checkpoint(tmp_path / "evil.pt", marker)
@@ -94,8 +136,17 @@ def test_every_command_refuses_a_checkpoint_that_would_run_code(world, tmp_path,
     runs = {
         "predict": ["predict", "--checkpoint", str(evil), "--sketch", sketch, "--out", str(tmp_path / "p")],
         "evaluate": ["evaluate", "--checkpoint", str(evil), "--dataset", ds, "--out", str(tmp_path / "e.json")],
-        "interpolate": ["interpolate", "--checkpoint", str(evil), "--sketch-a", sketch, "--sketch-b", sketch,
-                        "--out", str(tmp_path / "i")],
+        "interpolate": [
+            "interpolate",
+            "--checkpoint",
+            str(evil),
+            "--sketch-a",
+            sketch,
+            "--sketch-b",
+            sketch,
+            "--out",
+            str(tmp_path / "i"),
+        ],
     }
     for name, argv in runs.items():
         line = cli_error(capsys, argv)
@@ -123,9 +174,25 @@ def test_the_command_line_refuses_it_with_exit_status_2(world, tmp_path):
     marker = tmp_path / "MARKER"
     evil = _evil_checkpoint(tmp_path / "evil.pt", marker)
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    res = subprocess.run([sys.executable, "-m", "train", "predict", "--checkpoint", str(evil), "--sketch",
-                          str(world["sketch"]), "--out", str(tmp_path / "out")],
-                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)  # fmt: skip
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "train",
+            "predict",
+            "--checkpoint",
+            str(evil),
+            "--sketch",
+            str(world["sketch"]),
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert res.returncode == 2 and res.stdout == ""
     assert res.stderr.count("\n") == 1 and res.stderr.startswith(f"python -m train predict: error: {evil}: refused")
     assert not marker.exists() and not (tmp_path / "out").exists()
@@ -187,7 +254,9 @@ def test_evaluate_and_interpolate_name_the_bad_flag(world, tmp_path, capsys):
     assert line.endswith("steps must be an integer >= 2 (the two ends included), got 0 (--steps)")
     pr = ["predict", "--checkpoint", ck, "--sketch", sk, "--out", str(tmp_path / "p")]
     assert cli_error(capsys, pr + ["--part", "guard=maybe"]).endswith("--part guard=maybe: use NAME=on or NAME=off")
-    assert cli_error(capsys, pr + ["--part", "wing=off"]).endswith("--part: template has no optional part(s) ['wing']; it has []")
+    assert cli_error(capsys, pr + ["--part", "wing=off"]).endswith(
+        "--part: template has no optional part(s) ['wing']; it has []"
+    )
     assert cli_error(capsys, pr + ["--scale", "-1"]).endswith("--units/--scale: scale must be positive, got -1.0")
     assert not any((tmp_path / n).exists() for n in ("e.json", "i", "p"))
 
@@ -195,19 +264,23 @@ def test_evaluate_and_interpolate_name_the_bad_flag(world, tmp_path, capsys):
 def test_an_out_path_that_is_a_file_is_named(world, tmp_path, capsys):
     ck, sk, taken = str(world["ckpt"]), str(world["sketch"]), tmp_path / "taken"
     taken.write_text("keep me")
-    for argv in (["predict", "--checkpoint", ck, "--sketch", sk, "--out", str(taken)],
-                 ["interpolate", "--checkpoint", ck, "--sketch-a", sk, "--sketch-b", sk, "--out", str(taken)],
-                 fit_argv(world["ds"], taken)):  # fmt: skip
+    for argv in (
+        ["predict", "--checkpoint", ck, "--sketch", sk, "--out", str(taken)],
+        ["interpolate", "--checkpoint", ck, "--sketch-a", sk, "--sketch-b", sk, "--out", str(taken)],
+        fit_argv(world["ds"], taken),
+    ):
         assert cli_error(capsys, argv).endswith(f"{taken}: not a folder (--out)")
     assert taken.read_text() == "keep me"
 
 
 def test_a_device_that_is_not_there_is_named(world, tmp_path, capsys):
     assert cli_error(capsys, fit_argv(world["ds"], tmp_path / "run", "--device", "gpu")).endswith(
-        "--device gpu: not a device name (cpu, cuda, cuda:N)")
+        "--device gpu: not a device name (cpu, cuda, cuda:N)"
+    )
     if not torch.cuda.is_available():
         assert cli_error(capsys, fit_argv(world["ds"], tmp_path / "run", "--device", "cuda")).endswith(
-            "--device cuda: CUDA is not available on this machine (use --device cpu)")
+            "--device cuda: CUDA is not available on this machine (use --device cpu)"
+        )
     assert not (tmp_path / "run").exists()
 
 
@@ -234,10 +307,21 @@ def _bad_checkpoints(world, d: Path) -> list[tuple[Path, str]]:
 def test_a_bad_checkpoint_file_is_named_by_every_command(world, tmp_path, capsys):
     sk, ds = str(world["sketch"]), str(world["ds"])
     for path, words in _bad_checkpoints(world, tmp_path):
-        for argv in (["predict", "--checkpoint", str(path), "--sketch", sk, "--out", str(tmp_path / "p")],
-                     ["evaluate", "--checkpoint", str(path), "--dataset", ds, "--out", str(tmp_path / "e.json")],
-                     ["interpolate", "--checkpoint", str(path), "--sketch-a", sk, "--sketch-b", sk,
-                      "--out", str(tmp_path / "i")]):  # fmt: skip
+        for argv in (
+            ["predict", "--checkpoint", str(path), "--sketch", sk, "--out", str(tmp_path / "p")],
+            ["evaluate", "--checkpoint", str(path), "--dataset", ds, "--out", str(tmp_path / "e.json")],
+            [
+                "interpolate",
+                "--checkpoint",
+                str(path),
+                "--sketch-a",
+                sk,
+                "--sketch-b",
+                sk,
+                "--out",
+                str(tmp_path / "i"),
+            ],
+        ):
             assert words in cli_error(capsys, argv), (path.name, argv[0])
     assert not any((tmp_path / n).exists() for n in ("e.json", "i", "p"))
 
@@ -246,8 +330,18 @@ def test_a_checkpoint_whose_weights_do_not_fit_is_named(world, tmp_path, capsys)
     ck = load_checkpoint(world["ckpt"])
     ck["settings"]["encoder_width"] = 16  # the saved weights are of width 8
     torch.save(ck, tmp_path / "odd.pt")
-    line = cli_error(capsys, ["predict", "--checkpoint", str(tmp_path / "odd.pt"), "--sketch", str(world["sketch"]),
-                              "--out", str(tmp_path / "p")])  # fmt: skip
+    line = cli_error(
+        capsys,
+        [
+            "predict",
+            "--checkpoint",
+            str(tmp_path / "odd.pt"),
+            "--sketch",
+            str(world["sketch"]),
+            "--out",
+            str(tmp_path / "p"),
+        ],
+    )
     assert "odd.pt: its weights do not fit the network its settings describe" in line
 
 
@@ -255,15 +349,30 @@ def test_a_missing_or_unreadable_sketch_is_named(world, tmp_path, capsys):
     ck = str(world["ckpt"])
     (tmp_path / "notes.png").write_text("not an image")
     (tmp_path / "empty.png").write_bytes(b"")
-    cases = [(tmp_path / "nope.png", "nope.png: no such sketch file"),
-             (tmp_path, f"{tmp_path}: no such sketch file (it is a folder)"),
-             (tmp_path / "notes.png", "notes.png: not a readable image (not a PNG, JPEG, WebP or TIFF file)"),
-             (tmp_path / "empty.png", "empty.png: not a readable image (empty file)")]
+    cases = [
+        (tmp_path / "nope.png", "nope.png: no such sketch file"),
+        (tmp_path, f"{tmp_path}: no such sketch file (it is a folder)"),
+        (tmp_path / "notes.png", "notes.png: not a readable image (not a PNG, JPEG, WebP or TIFF file)"),
+        (tmp_path / "empty.png", "empty.png: not a readable image (empty file)"),
+    ]
     for path, words in cases:
-        assert words in cli_error(capsys, ["predict", "--checkpoint", ck, "--sketch", str(path), "--out",
-                                           str(tmp_path / "p")])  # fmt: skip
-        assert words in cli_error(capsys, ["interpolate", "--checkpoint", ck, "--sketch-a", str(world["sketch"]),
-                                           "--sketch-b", str(path), "--out", str(tmp_path / "i")])  # fmt: skip
+        assert words in cli_error(
+            capsys, ["predict", "--checkpoint", ck, "--sketch", str(path), "--out", str(tmp_path / "p")]
+        )
+        assert words in cli_error(
+            capsys,
+            [
+                "interpolate",
+                "--checkpoint",
+                ck,
+                "--sketch-a",
+                str(world["sketch"]),
+                "--sketch-b",
+                str(path),
+                "--out",
+                str(tmp_path / "i"),
+            ],
+        )
     assert not (tmp_path / "p").exists() and not (tmp_path / "i").exists()
 
 
@@ -272,8 +381,15 @@ def test_a_missing_dataset_folder_or_category_is_named(world, tmp_path, capsys):
     assert line.endswith(f"{tmp_path / 'nowhere'}: the dataset folder does not exist")
     line = cli_error(capsys, fit_argv(world["ds"], tmp_path / "run", "--category", "mug"))
     assert line.endswith("no train-*.tar shards: the dataset has no category 'mug' (its categories: knife)")
-    ev = ["evaluate", "--checkpoint", str(world["ckpt"]), "--dataset", str(tmp_path / "nowhere"),
-          "--out", str(tmp_path / "e.json")]  # fmt: skip
+    ev = [
+        "evaluate",
+        "--checkpoint",
+        str(world["ckpt"]),
+        "--dataset",
+        str(tmp_path / "nowhere"),
+        "--out",
+        str(tmp_path / "e.json"),
+    ]
     assert cli_error(capsys, ev).endswith("nowhere: the dataset folder does not exist")
     assert not (tmp_path / "run").exists() and not (tmp_path / "e.json").exists()
 
@@ -299,8 +415,9 @@ def test_a_resume_with_nothing_left_to_do_prints_valid_json(world, tmp_path, cap
 
 def test_a_diverging_run_stops_and_keeps_its_last_good_checkpoint(world, tmp_path, capsys):
     # at lr 1e12 the first update blows the weights up and step 2's loss is NaN
-    line = cli_error(capsys, fit_argv(world["ds"], tmp_path / "run", "--lr", "1e12", "--steps", "6",
-                                      "--checkpoint-every", "1"))  # fmt: skip
+    line = cli_error(
+        capsys, fit_argv(world["ds"], tmp_path / "run", "--lr", "1e12", "--steps", "6", "--checkpoint-every", "1")
+    )
     assert "step 2: training diverged (the loss is nan" in line
     assert f"{tmp_path / 'run' / 'checkpoint.pt'} keeps step 1; try a lower --lr or --clip-grad" in line
     ck = load_checkpoint(tmp_path / "run" / "checkpoint.pt")

@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_manifest import build
 
 from pipeline.dataset.manifest import write_manifest
 from pipeline.dataset.verify import verify_dataset
-from test_manifest import build
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,8 +27,9 @@ def dataset(tmp_path: Path) -> Path:
 
 
 def run_verify(ds: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline", "verify", str(ds)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "pipeline", "verify", str(ds)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
 
 
 def first_shard(ds: Path) -> Path:
@@ -76,8 +77,13 @@ def test_preview_writes_one_sheet_per_category(dataset: Path, tmp_path: Path) ->
     import numpy as np
     from PIL import Image
 
-    r = subprocess.run([sys.executable, "-m", "pipeline", "preview", str(dataset), "--out", str(tmp_path / "pv")],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "pipeline", "preview", str(dataset), "--out", str(tmp_path / "pv")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "pv").iterdir()) == ["car.png", "mug.png"]
     mug = np.asarray(Image.open(tmp_path / "pv" / "mug.png"))

@@ -43,9 +43,23 @@ def shards(tmp_path_factory):
 
 def test_a_run_hands_out_the_average_and_resumes_both(shards, tmp_path):
     out = tmp_path / "ema"
-    base = dict(dataset=str(shards), category="knife", template="sphere24", out=str(out), batch_size=2,
-                workers=0, n_points=300, image_size=32, max_views=1, log_every=1, checkpoint_every=1,
-                val_every=1, encoder_width=16, weights=LossWeights(collision=0.0), ema=0.2)  # fmt: skip
+    base = dict(
+        dataset=str(shards),
+        category="knife",
+        template="sphere24",
+        out=str(out),
+        batch_size=2,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=1,
+        log_every=1,
+        checkpoint_every=1,
+        val_every=1,
+        encoder_width=16,
+        weights=LossWeights(collision=0.0),
+        ema=0.2,
+    )
     fit(FitSettings(**base, steps=2), progress=False)
     ck = load_checkpoint(out / "checkpoint.pt")
     served, trained = ck["model"], ck["train_model"]

@@ -17,17 +17,24 @@ import numpy as np
 import pytest
 import webdataset as wds
 
-from workflows.build_settings import BuildSettings
-from pipeline.dataset.manifest import read_manifest
-from pipeline.core.schema import REQUIRED_MEMBERS
 from pipeline.core.hashing import file_sha256
+from pipeline.core.schema import REQUIRED_MEMBERS
+from pipeline.dataset.manifest import read_manifest
 from pipeline.dataset.shards import list_shards
 from pipeline.dataset.verify import verify_dataset
 from workflows import BuildCategory, BuildDataset
+from workflows.build_settings import BuildSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = dict(models_per_category=3, views=2, variants=1, image_size=64, out_size=64, batch_size=2,
-            shard_settings='{"max_samples_per_shard": 2}')
+TINY = dict(
+    models_per_category=3,
+    views=2,
+    variants=1,
+    image_size=64,
+    out_size=64,
+    batch_size=2,
+    shard_settings='{"max_samples_per_shard": 2}',
+)
 CATS = "knife,mug"
 
 
@@ -107,10 +114,15 @@ def test_rebuild_elsewhere_is_byte_identical(built: Path, tmp_path: Path) -> Non
 def test_regenerate_one_category_after_pencil_change(built: Path) -> None:
     ds, work = built / "ds", built / "work"
     knife_before, mug_before = shard_state(ds, "knife"), shard_state(ds, "mug")
-    s = BuildSettings(**{k: v for k, v in TINY.items() if k != "shard_settings"},
-                      shard_overrides=TINY["shard_settings"], work_dir=work, dataset_dir=ds)
-    upstream = sorted((s.stage_dir("render") / "mug").glob("*/record.json")) + \
-        sorted((s.stage_dir("prepare") / "mug").glob("*/record.json"))
+    s = BuildSettings(
+        **{k: v for k, v in TINY.items() if k != "shard_settings"},
+        shard_overrides=TINY["shard_settings"],
+        work_dir=work,
+        dataset_dir=ds,
+    )
+    upstream = sorted((s.stage_dir("render") / "mug").glob("*/record.json")) + sorted(
+        (s.stage_dir("prepare") / "mug").glob("*/record.json")
+    )
     upstream_mtimes = [p.stat().st_mtime_ns for p in upstream]
     assert build(built, BuildCategory, category="mug", augment_settings='{"grain": 0.1, "tones": [[0.9, 1.0]]}')
     assert shard_state(ds, "knife") == knife_before  # untouched: same mtimes and hashes
@@ -160,6 +172,11 @@ def test_failed_model_is_recorded_and_category_completes(tmp_path: Path) -> None
     samples = list(wds.WebDataset([str(p) for p in shards], shardshuffle=False).decode("l"))
     assert [s["__key__"] for s in samples] == ["mug_good"]
     assert {"points.npy", "strokes.json", "cameras.json", "meta.json", "sketch_00_00.png"} <= set(samples[0])
-    r = subprocess.run([sys.executable, "-m", "pipeline", "verify", str(tmp_path / "ds")], cwd=ROOT,
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "pipeline", "verify", str(tmp_path / "ds")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stdout

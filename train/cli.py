@@ -28,10 +28,14 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     for action in p._actions:  # a recipe names the category and the template
         if action.dest in RECIPE_NAMES:
             action.required, action.default = False, None
-    p.add_argument("--recipe", choices=RECIPES, default=None,
-                   help="start from a named recipe, a complete set of settings measured for that category "
-                        "(BENCHMARKS.md's quality table); any flag given overrides its value: "
-                        + "; ".join(f"{r}: {describe(r)}" for r in RECIPES))
+    p.add_argument(
+        "--recipe",
+        choices=RECIPES,
+        default=None,
+        help="start from a named recipe, a complete set of settings measured for that category "
+        "(BENCHMARKS.md's quality table); any flag given overrides its value: "
+        + "; ".join(f"{r}: {describe(r)}" for r in RECIPES),
+    )
     # added by hand so its default can come from the template file; the help is the field's
     field = {f.name: f for f in dataclasses.fields(FitSettings)}["match_normals"]
     p.add_argument("--match-normals", type=float, default=None, help=field.metadata["help"])
@@ -70,8 +74,13 @@ def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSet
     if missing:
         raise UsageError(f"{' and '.join(missing)} required (or --recipe)")
     tpl = load_template(a.template)
-    return from_args(FitSettings, a, skip=TEMPLATE_DEFAULTS, weights=weights_from_flags(a, tpl.regularizers),
-                     match_normals=tpl.match_normals if a.match_normals is None else a.match_normals)
+    return from_args(
+        FitSettings,
+        a,
+        skip=TEMPLATE_DEFAULTS,
+        weights=weights_from_flags(a, tpl.regularizers),
+        match_normals=tpl.match_normals if a.match_normals is None else a.match_normals,
+    )
 
 
 def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
@@ -111,22 +120,45 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--split", default="test", choices=SPLITS)
     ev.add_argument("--category", default=None, help="default: the run's category")
     ev.add_argument("--views", type=int, default=1)
-    ev.add_argument("--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)")
+    ev.add_argument(
+        "--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)"
+    )
     ev.add_argument("--limit", type=int, default=None, help="evaluate at most this many samples")
     ev.add_argument("--out", default=None, help="JSON path (default: next to the checkpoint)")
-    ev.add_argument("--cad-check", type=int, default=16,
-                    help="check this many predictions with the CAD kernel (cad_clean: the share predict would "
-                         "call clean; a second or more each; 0: off)")
+    ev.add_argument(
+        "--cad-check",
+        type=int,
+        default=16,
+        help="check this many predictions with the CAD kernel (cad_clean: the share predict would "
+        "call clean; a second or more each; 0: off)",
+    )
     pr = sub.add_parser("predict", help="patches + OBJ + quad mesh + IGES + PNG from sketches")
     pr.add_argument("--checkpoint", required=True)
     pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
     pr.add_argument("--out", required=True)
-    pr.add_argument("--part", action="append", default=[], help="switch an optional part of the checkpoint's template on or off, e.g. engine=off (airplane; a wrong name is an error listing the template's parts)")
-    pr.add_argument("--units", default=DEFAULT_UNITS, choices=sorted(MM_PER_UNIT), help="length unit declared in patches.stp / patches.igs")
-    pr.add_argument("--scale", type=float, default=None,
-                    help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)")  # fmt: skip
-    pr.add_argument("--json", action="store_true",
-                    help="print the result as JSON on stdout (it is always written to OUT/prediction.json)")
+    pr.add_argument(
+        "--part",
+        action="append",
+        default=[],
+        help="switch an optional part of the checkpoint's template on or off, e.g. engine=off (airplane; a wrong name is an error listing the template's parts)",
+    )
+    pr.add_argument(
+        "--units",
+        default=DEFAULT_UNITS,
+        choices=sorted(MM_PER_UNIT),
+        help="length unit declared in patches.stp / patches.igs",
+    )
+    pr.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)",
+    )
+    pr.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result as JSON on stdout (it is always written to OUT/prediction.json)",
+    )
     it = sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)")
     it.add_argument("--checkpoint", required=True)
     it.add_argument("--sketch-a", nargs="+", required=True)
@@ -163,8 +195,9 @@ def _run(a: argparse.Namespace) -> None:
         ckpt = Path(a.checkpoint)
         out = a.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{a.split}.json"))
         with torch.no_grad():
-            res = evaluate(a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out,
-                           cad_check=a.cad_check)
+            res = evaluate(
+                a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out, cad_check=a.cad_check
+            )
         print(format_table(res))
         print(f"saved {out}")
     elif a.cmd == "predict":
@@ -179,8 +212,10 @@ def _run(a: argparse.Namespace) -> None:
             print(json.dumps(res, indent=1))
         # people read stderr: where the files are, then the verdict in words (a mesh can be
         # watertight and still pass through itself)
-        print(f"wrote {a.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
-              file=sys.stderr)
+        print(
+            f"wrote {a.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
+            file=sys.stderr,
+        )
         print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]), file=sys.stderr)
     elif a.cmd == "interpolate":
         from train.interpolate import interpolate

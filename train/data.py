@@ -27,8 +27,8 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, shard_glob, sketch_view_variant
 from pipeline.core.seeding import rng_for
-from train.errors import UsageError
 from train.augmentation import Jitter, jitter_image
+from train.errors import UsageError
 from train.sketch_input import Framing, measure_framing
 
 
@@ -69,8 +69,11 @@ def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     urls = sorted(str(p) for p in folder.glob(shard_glob(split)))
     if not urls and not folder.is_dir():
         there = sorted(p.name for p in root.iterdir() if p.is_dir())
-        raise NoShards(folder, f"no {shard_glob(split)} shards: the dataset has no category {category!r} "
-                               f"(its categories: {', '.join(there) or 'none'})")
+        raise NoShards(
+            folder,
+            f"no {shard_glob(split)} shards: the dataset has no category {category!r} "
+            f"(its categories: {', '.join(there) or 'none'})",
+        )
     if not urls:
         raise NoShards(folder, f"no {shard_glob(split)} shards")
     return urls
@@ -140,7 +143,9 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
     else:
         names = [table[v][0] for v in views[: settings.eval_views]]
         flip = False
-        idx = rng_for(0, "eval-points", key).choice(len(points), size=settings.n_points, replace=len(points) < settings.n_points)
+        idx = rng_for(0, "eval-points", key).choice(
+            len(points), size=settings.n_points, replace=len(points) < settings.n_points
+        )
     width = settings.max_views if train else settings.eval_views
     images = np.zeros((width, 1, settings.image_size, settings.image_size), np.float32)
     mask = np.zeros(width, bool)
@@ -157,8 +162,15 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
     pts, part_ids = points[np.sort(idx)], part_ids[np.sort(idx)]
     if flip:  # a mirrored drawing shows the mirrored shape: mirror the target across x = 0
         pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)  # part families are side-free
-    return {"images": images, "view_mask": mask, "points": pts, "point_parts": part_ids, "key": key, "meta": meta,
-            **extra}
+    return {
+        "images": images,
+        "view_mask": mask,
+        "points": pts,
+        "point_parts": part_ids,
+        "key": key,
+        "meta": meta,
+        **extra,
+    }
 
 
 def _point_parts(raw: dict, n: int) -> np.ndarray:
@@ -179,8 +191,11 @@ def collate(samples: list[dict]) -> dict[str, Any]:
         "point_parts": torch.from_numpy(np.stack([s["point_parts"] for s in samples])),
         "key": [s["key"] for s in samples],
         "meta": [s["meta"] for s in samples],
-        **({"pair_images": torch.from_numpy(np.stack([s["pair_images"] for s in samples]))}
-           if "pair_images" in samples[0] else {}),
+        **(
+            {"pair_images": torch.from_numpy(np.stack([s["pair_images"] for s in samples]))}
+            if "pair_images" in samples[0]
+            else {}
+        ),
     }
 
 
@@ -242,8 +257,10 @@ class ShardStream(IterableDataset):
                 yield from self._decoded(buffer.pop(int(rng.integers(len(buffer)))), rng)
             if produced == 0:  # an endless loop over nothing would hang the trainer
                 # a UsageError: unlike ModelError it survives the trip back from a loader worker
-                raise UsageError(f"{Path(self.urls[0]).parent}: data slot {slot}/{n_slots} has no samples "
-                                 f"({len(self.urls)} shards); use fewer --workers or ranks")
+                raise UsageError(
+                    f"{Path(self.urls[0]).parent}: data slot {slot}/{n_slots} has no samples "
+                    f"({len(self.urls)} shards); use fewer --workers or ranks"
+                )
             epoch += 1
 
     def _decoded(self, raw: dict, rng: np.random.Generator) -> Iterator[dict]:

@@ -30,9 +30,9 @@ from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict
 from train.export.units import CadUnits
 from train.fit import load_run
+from train.geometry.intersections import count_intersecting_pairs
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
-from train.geometry.intersections import count_intersecting_pairs
 from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
 from train.objective import Objective
 
@@ -56,8 +56,10 @@ def batch_metrics(
     out = {k: terms[k] for k in LOSS_METRICS}
     patches = objective.template.patches_from_params(params)
     # peers' metrics on area-uniform samples of the present patches, as many as the target has
-    samples = [sample_surface_uniform(p if mask is None else p[mask[b]], target.shape[1], generator)
-               for b, p in enumerate(patches)]  # fmt: skip
+    samples = [
+        sample_surface_uniform(p if mask is None else p[mask[b]], target.shape[1], generator)
+        for b, p in enumerate(patches)
+    ]
     pp = torch.stack([x for x, _ in samples]).to(target.dtype)
     pn = torch.stack([n for _, n in samples]).to(target.dtype)
     out["chamfer_sq_x1000"] = chamfer_l2_x1000(pp, target)
@@ -65,7 +67,10 @@ def batch_metrics(
     for t in taus:
         out[f"fscore@{t:g}"] = fscore(pp, target, t)
     out["intersecting_pairs"] = torch.tensor(
-        [float(count_intersecting_pairs(p, objective.pairs, None if mask is None else mask[b])) for b, p in enumerate(patches)]
+        [
+            float(count_intersecting_pairs(p, objective.pairs, None if mask is None else mask[b]))
+            for b, p in enumerate(patches)
+        ]
     )
     return out
 
@@ -76,8 +81,10 @@ def cad_verdicts(objective: Objective, params: torch.Tensor, meta: list[dict]) -
     mask = objective.patch_mask(meta, params.device)
     patches = objective.template.patches_from_params(params.double())
     mm = CadUnits().mm
-    return [kernel_verdict(coons_to_bezier((p if mask is None else p[mask[b]]).numpy()) * mm).clean
-            for b, p in enumerate(patches)]
+    return [
+        kernel_verdict(coons_to_bezier((p if mask is None else p[mask[b]]).numpy()) * mm).clean
+        for b, p in enumerate(patches)
+    ]
 
 
 @torch.no_grad()
@@ -176,5 +183,3 @@ def format_table(result: dict) -> str:
     for k in result["model"]:
         lines.append(f"{k:<20}" + "".join(f"{result[c][k]:>14.6g}" if k in result[c] else f"{'-':>14}" for c in cols))
     return "\n".join(lines)
-
-

@@ -14,8 +14,8 @@ Run directory layout::
 from __future__ import annotations
 
 import csv
-import hashlib
 import dataclasses
+import hashlib
 import json
 import math
 import pickle
@@ -63,43 +63,73 @@ class FitSettings:
     steps: int = 1000
     batch_size: int = 8
     lr: float = _arg(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
-    lr_schedule: str = _arg("constant", "constant, or cosine: linear warm-up over --warmup-steps, then a cosine "
-                            "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)")
+    lr_schedule: str = _arg(
+        "constant",
+        "constant, or cosine: linear warm-up over --warmup-steps, then a cosine "
+        "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)",
+    )
     warmup_steps: int = _arg(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
     seed: int = 0
     workers: int = 2  # data loader worker processes per rank
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
     n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
-    encoder_width: int = _arg(64, "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
-                              "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)")
+    encoder_width: int = _arg(
+        64,
+        "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
+        "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)",
+    )
     checkpoint_every: int = 500
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
     device: str | None = None  # default: cuda when present, else cpu
-    match_normals: float = _arg(0.0, "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
-                                "(0: nearest point; the command line defaults to the template file's: 0.1 for "
-                                "the thin-walled bathtub and mug, docs/train.md)")
-    contrast: float = _arg(0.0, "weight of the contrastive term on the encoder's codes (two drawings of one model "
-                           "encode alike; not in the paper; 0: off; BENCHMARKS.md)")
-    clip_grad: float = _arg(0.0, "clip the gradient's global norm to this before each update (0: off; "
-                            "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)")
-    ema: float = _arg(0.0, "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
-                      "validate, keep and hand out the average instead of the training weights (0: off; BENCHMARKS.md)")
+    match_normals: float = _arg(
+        0.0,
+        "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
+        "(0: nearest point; the command line defaults to the template file's: 0.1 for "
+        "the thin-walled bathtub and mug, docs/train.md)",
+    )
+    contrast: float = _arg(
+        0.0,
+        "weight of the contrastive term on the encoder's codes (two drawings of one model "
+        "encode alike; not in the paper; 0: off; BENCHMARKS.md)",
+    )
+    clip_grad: float = _arg(
+        0.0,
+        "clip the gradient's global norm to this before each update (0: off; "
+        "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)",
+    )
+    ema: float = _arg(
+        0.0,
+        "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
+        "validate, keep and hand out the average instead of the training weights (0: off; BENCHMARKS.md)",
+    )
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
         # checked here, not in the CLI, so library callers are refused alike (a run of 0 steps
         # used to "finish" with a NaN loss; 0 points or pixels failed deep inside torch or OpenCV)
-        for name in ("steps", "batch_size", "max_views", "n_points", "image_size", "encoder_width",
-                     "checkpoint_every", "log_every"):
+        for name in (
+            "steps",
+            "batch_size",
+            "max_views",
+            "n_points",
+            "image_size",
+            "encoder_width",
+            "checkpoint_every",
+            "log_every",
+        ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
         for name in ("warmup_steps", "workers", "val_every"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
-        _require(self, "ema", _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
-                 "0 (off) or a decay between 0 and 1")
+        _require(
+            self,
+            "ema",
+            _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
+            "0 (off) or a decay between 0 and 1",
+        )
         for name in ("clip_grad", "contrast", "match_normals"):
             value = getattr(self, name)
             _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
@@ -130,8 +160,14 @@ def _require(settings: Any, name: str, ok: bool, expected: str) -> None:
 
 
 def save_checkpoint(
-    path: Path, model: torch.nn.Module, optimizer: torch.optim.Optimizer, step: int, settings: FitSettings,
-    template: Template, val_chamfer: float | None = None, train_model: torch.nn.Module | None = None,
+    path: Path,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    step: int,
+    settings: FitSettings,
+    template: Template,
+    val_chamfer: float | None = None,
+    train_model: torch.nn.Module | None = None,
     framing: Framing | None = None,
 ) -> None:
     """``model`` is the network the checkpoint hands out (evaluate, predict); ``train_model``, when
@@ -176,9 +212,11 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
         named = re.search(r"GLOBAL (\S+)", str(exc))
         if named is None:  # garbage, not a pickle asking for code
             raise UsageError(f"{path}: not a readable checkpoint (a bad pickle)") from None
-        raise UsageError(f"{path}: refused: it holds Python objects other than tensors and plain data "
-                         f"({named.group(1)}; weights_only load); only load checkpoints you trust "
-                         "(docs/train.md)") from None
+        raise UsageError(
+            f"{path}: refused: it holds Python objects other than tensors and plain data "
+            f"({named.group(1)}; weights_only load); only load checkpoints you trust "
+            "(docs/train.md)"
+        ) from None
     except Exception as exc:  # noqa: BLE001 - truncated or not a torch file: the unpickler fails any which way
         first = one_line(exc).split(". ")[0][:200]  # torch's own advice after it is about weights_only=False
         raise UsageError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {first})") from None
@@ -217,8 +255,7 @@ _REMOVED_SETTINGS = {"encoder_lr": None}  # stop 15's separate encoder learning 
 
 def checkpoint_settings(ckpt: dict) -> FitSettings:
     """The settings a checkpoint was trained with (older checkpoints: new fields keep defaults)."""
-    saved = {k: v for k, v in ckpt["settings"].items()
-             if not (k in _REMOVED_SETTINGS and v == _REMOVED_SETTINGS[k])}
+    saved = {k: v for k, v in ckpt["settings"].items() if not (k in _REMOVED_SETTINGS and v == _REMOVED_SETTINGS[k])}
     return from_dict(FitSettings, saved)
 
 
@@ -247,8 +284,9 @@ def load_run(path: str | Path) -> TrainedRun:
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
-        raise UsageError(f"{path}: its weights do not fit the network its settings describe "
-                         f"({one_line(exc)[:300]})") from None
+        raise UsageError(
+            f"{path}: its weights do not fit the network its settings describe ({one_line(exc)[:300]})"
+        ) from None
     return TrainedRun(model.eval(), template, settings, int(ckpt["step"]), _saved_framing(path, ckpt))
 
 
@@ -321,9 +359,16 @@ def clip_gradient(net: torch.nn.Module, limit: float) -> torch.Tensor:
 
 
 def train_step(
-    net: torch.nn.Module, optimizer: torch.optim.Optimizer, objective: Objective, batch: dict, st: torch.Tensor,
-    weights: LossWeights, device: torch.device, contrast: float = 0.0, clip_grad: float = 0.0,
-) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:  # fmt: skip
+    net: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    objective: Objective,
+    batch: dict,
+    st: torch.Tensor,
+    weights: LossWeights,
+    device: torch.device,
+    contrast: float = 0.0,
+    clip_grad: float = 0.0,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
     terms (``bench/bench_step_profile.py`` times this); with ``contrast`` > 0 the batch must hold
@@ -345,8 +390,9 @@ def train_step(
     terms["grad_norm"] = clip_gradient(net, clip_grad)
     finite = torch.isfinite(loss.detach()) & torch.isfinite(terms["grad_norm"])
     if not bool(finite):  # one scalar read per step (the progress bar reads the loss anyway)
-        raise FloatingPointError(f"the loss is {float(loss.detach()):g} and the gradient norm "
-                                 f"{float(terms['grad_norm']):g}")
+        raise FloatingPointError(
+            f"the loss is {float(loss.detach()):g} and the gradient norm {float(terms['grad_norm']):g}"
+        )
     optimizer.step()
     return loss, terms
 
@@ -376,8 +422,11 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     # a resumed run keeps the template it started with, even if the named one was rebuilt since
     template = load_template(settings.template) if ckpt is None else _saved_template(ckpt_path, ckpt)
     # how the training sketches fill the frame, kept with the run for predict's normalization
-    framing = _saved_framing(ckpt_path, ckpt) if ckpt is not None and "framing" in ckpt \
+    framing = (
+        _saved_framing(ckpt_path, ckpt)
+        if ckpt is not None and "framing" in ckpt
         else shard_framing(settings.dataset, settings.category, settings.image_size)
+    )
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     trainee = TrainingNet(model)
@@ -394,22 +443,37 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
     objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
-    data = DataSettings(max_views=settings.max_views, n_points=settings.n_points, image_size=settings.image_size,
-                        pair=settings.contrast > 0)
+    data = DataSettings(
+        max_views=settings.max_views,
+        n_points=settings.n_points,
+        image_size=settings.image_size,
+        pair=settings.contrast > 0,
+    )
     if template.symmetry is not None:
         data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))
     # A resumed run draws a fresh, still seeded data order keyed by the step it resumes from.
     loader = make_loader(
-        settings.dataset, settings.category, "train", data, derive_seed(settings.seed, "data", start),
-        settings.batch_size, settings.workers, True, info.rank, info.world, template.symmetry is not None,
-    )  # fmt: skip
+        settings.dataset,
+        settings.category,
+        "train",
+        data,
+        derive_seed(settings.seed, "data", start),
+        settings.batch_size,
+        settings.workers,
+        True,
+        info.rank,
+        info.world,
+        template.symmetry is not None,
+    )
     logger = _Logger(out, start, info, settings) if info.is_main else None
     val_loader = None
     if settings.val_every:
         shard_urls(settings.dataset, settings.category, "val")  # checked on every rank: all stop alike
     if settings.val_every and info.is_main:
         val_data = DataSettings(eval_views=1, n_points=settings.n_points, image_size=settings.image_size)
-        val_loader = make_loader(settings.dataset, settings.category, "val", val_data, 0, settings.batch_size, train=False)
+        val_loader = make_loader(
+            settings.dataset, settings.category, "val", val_data, 0, settings.batch_size, train=False
+        )
     bar = None
     if progress and info.is_main and start < settings.steps:
         from tqdm import tqdm
@@ -427,8 +491,17 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         for group in optimizer.param_groups:
             group["lr"] = lr
         try:
-            loss, terms = train_step(net, optimizer, objective, batch, objective.sample_st(gen), settings.weights,
-                                     info.device, settings.contrast, settings.clip_grad)
+            loss, terms = train_step(
+                net,
+                optimizer,
+                objective,
+                batch,
+                objective.sample_st(gen),
+                settings.weights,
+                info.device,
+                settings.contrast,
+                settings.clip_grad,
+            )
         except FloatingPointError as exc:
             raise UsageError(_diverged(step + 1, exc, ckpt_path, kept)) from None
         if average is not None:
@@ -442,17 +515,29 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             val = validation_chamfer(served, val_loader, objective, info.device)
             if val < best:
                 best = val
-                save_checkpoint(out / "best.pt", served, optimizer, done, settings, template, val_chamfer=val,
-                                train_model=trained, framing=framing)
+                save_checkpoint(
+                    out / "best.pt",
+                    served,
+                    optimizer,
+                    done,
+                    settings,
+                    template,
+                    val_chamfer=val,
+                    train_model=trained,
+                    framing=framing,
+                )
         if done % settings.log_every == 0 or done == settings.steps or val_step:
             row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
             last = float(mean_over_ranks(loss.detach(), info))
             if logger:
-                logger.log(done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr},
-                           time.perf_counter() - t0)
+                logger.log(
+                    done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr}, time.perf_counter() - t0
+                )
         if done % settings.checkpoint_every == 0 or done == settings.steps:
             if logger:
-                save_checkpoint(ckpt_path, served, optimizer, done, settings, template, train_model=trained, framing=framing)
+                save_checkpoint(
+                    ckpt_path, served, optimizer, done, settings, template, train_model=trained, framing=framing
+                )
             kept = done
         if bar:
             bar.update(1)
@@ -461,19 +546,23 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         bar.close()
     if logger:
         logger.close()
-    return {"step": max(start, settings.steps), "last_loss": last, "out": str(out),
-            "param_digest": param_digest(served)}
+    return {
+        "step": max(start, settings.steps),
+        "last_loss": last,
+        "out": str(out),
+        "param_digest": param_digest(served),
+    }
 
 
 def _diverged(step: int, exc: FloatingPointError, ckpt_path: Path, kept: int | None) -> str:
     """Why training stopped at a non-finite loss, and what is left on disk."""
     left = "no checkpoint was saved" if kept is None else f"{ckpt_path} keeps step {kept}"
-    return (f"step {step}: training diverged ({exc}); stopped before the update, {left}; "
-            "try a lower --lr or --clip-grad")
+    return f"step {step}: training diverged ({exc}); stopped before the update, {left}; try a lower --lr or --clip-grad"
 
 
 def settings_differences(saved: FitSettings, now: FitSettings) -> list[str]:
     """``name saved -> now`` for each run-defining setting that differs (nested: ``weights.flat``)."""
+
     def flat(d: dict, prefix: str = "") -> dict:
         out = {}
         for k, v in d.items():
@@ -488,8 +577,10 @@ def check_resume(ckpt_path: Path, saved: FitSettings, now: FitSettings) -> None:
     """UsageError naming every setting a resume changes (``--steps`` and logging may change)."""
     diff = settings_differences(saved, now)
     if diff:
-        raise UsageError(f"{ckpt_path}: the run there has different settings ({'; '.join(diff)}); "
-                         "resume with the same settings or use another --out")
+        raise UsageError(
+            f"{ckpt_path}: the run there has different settings ({'; '.join(diff)}); "
+            "resume with the same settings or use another --out"
+        )
 
 
 def param_digest(model: torch.nn.Module) -> str:

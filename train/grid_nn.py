@@ -138,8 +138,9 @@ def _query_one(q0, q1, q2, h, start, count, pts, order, mask, budget, guess):
                         if gx * gx + gy * gy + gz * gz > best or (x == cx and y == cy and z == cz):
                             continue
                         s = _cell_bucket(x, y, z, mask)
-                        best, best_i, best_k = _scan(q0, q1, q2, start[s], start[s] + count[s], pts, order,
-                                                     best, best_i, best_k)  # fmt: skip
+                        best, best_i, best_k = _scan(
+                            q0, q1, q2, start[s], start[s] + count[s], pts, order, best, best_i, best_k
+                        )
             return best_k
     # No near candidate: cubic shells of cells around the query's cell until the best distance
     # is within the searched cube (every unsearched point lies beyond one of its faces).
@@ -161,13 +162,20 @@ def _query_one(q0, q1, q2, h, start, count, pts, order, mask, budget, guess):
                     if gx * gx + gy * gy + gz * gz > best:
                         continue
                     s = _cell_bucket(x, y, z, mask)
-                    best, best_i, best_k = _scan(q0, q1, q2, start[s], start[s] + count[s], pts, order,
-                                                 best, best_i, best_k)  # fmt: skip
-        face = min(
-            q0 - (cx - r) * h, (cx + r + 1) * h - q0,
-            q1 - (cy - r) * h, (cy + r + 1) * h - q1,
-            q2 - (cz - r) * h, (cz + r + 1) * h - q2,
-        ) - eps  # fmt: skip
+                    best, best_i, best_k = _scan(
+                        q0, q1, q2, start[s], start[s] + count[s], pts, order, best, best_i, best_k
+                    )
+        face = (
+            min(
+                q0 - (cx - r) * h,
+                (cx + r + 1) * h - q0,
+                q1 - (cy - r) * h,
+                (cy + r + 1) * h - q1,
+                q2 - (cz - r) * h,
+                (cz + r + 1) * h - q2,
+            )
+            - eps
+        )
         if face > 0.0 and best <= face * face:
             return best_k
         if visits > budget:
@@ -232,8 +240,9 @@ def _nearest_batch(query, reference, out, first_copy):
         _sort_by_bucket(qbucket, qcount, qsize, qstart, qorder)
         guess = np.int64(-1)
         for i in qorder:
-            k = _query_one(query[b, i, 0], query[b, i, 1], query[b, i, 2], h, start, count, pts, order,
-                           tsize - 1, _BUDGET, guess)  # fmt: skip
+            k = _query_one(
+                query[b, i, 0], query[b, i, 1], query[b, i, 2], h, start, count, pts, order, tsize - 1, _BUDGET, guess
+            )
             out[b, i] = order[k] if k >= 0 else -1
             if k >= 0:
                 guess = k

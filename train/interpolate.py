@@ -54,7 +54,12 @@ def write_strip(path: Path, rows: dict[str, list[QuadMesh]], clean: dict[str, li
 
 @torch.no_grad()
 def interpolate(
-    checkpoint: str | Path, sketch_a: list[str], sketch_b: list[str], out: str | Path, steps: int = 5, alpha: float = 25.0
+    checkpoint: str | Path,
+    sketch_a: list[str],
+    sketch_b: list[str],
+    out: str | Path,
+    steps: int = 5,
+    alpha: float = 25.0,
 ) -> dict:
     """Writes ``patch_XX.obj`` and ``latent_XX.obj`` (XX = 0..steps-1), ``params.npz``,
     ``strip.png`` and ``interpolation.json`` (with each frame's clean verdict)."""

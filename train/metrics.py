@@ -56,7 +56,9 @@ def fscore(pred_points: Tensor, target_points: Tensor, threshold: float = 0.01) 
 
 
 @torch.no_grad()
-def normal_consistency(pred_points: Tensor, pred_normals: Tensor, target_points: Tensor, target_normals: Tensor) -> Tensor:
+def normal_consistency(
+    pred_points: Tensor, pred_normals: Tensor, target_points: Tensor, target_normals: Tensor
+) -> Tensor:
     """Mean |n_x · n_NN(x)| over both directions, averaged → ``(B,)`` in [0, 1] (unit normals)."""
     a = (pred_normals * gather_points(target_normals, nearest_indices(pred_points, target_points))).sum(-1).abs()
     b = (target_normals * gather_points(pred_normals, nearest_indices(target_points, pred_points))).sum(-1).abs()

@@ -26,7 +26,8 @@ class SketchToPatches(nn.Module):
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
         self.hidden = nn.ModuleList(
-            nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True)) for a, b in zip(dims[:-1], dims[1:])
+            nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True))
+            for a, b in zip(dims[:-1], dims[1:])
         )
         self.out = nn.Linear(dims[-1], self.num_params)
         nn.init.zeros_(self.out.weight)
@@ -73,8 +74,9 @@ class TrainingNet(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None,
-                pair_images: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, images: torch.Tensor, view_mask: torch.Tensor | None = None, pair_images: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)."""
         m = self.model
         codes = m.encode(images, view_mask)

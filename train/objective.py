@@ -15,8 +15,8 @@ from torch import Tensor
 
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.geometry.coons import evaluate_patches
-from train.losses.chamfer import Groups
 from train.geometry.patch_pairs import collision_pairs
+from train.losses.chamfer import Groups
 from train.losses.total import loss_terms
 from train.losses.weights import LossWeights
 from train.templates import Template
@@ -100,14 +100,26 @@ class Objective:
         and normal-aware matching. Metrics use ``training=False``: the plain L_Ch (nearest points,
         no groups), comparable across templates and settings."""
         dev = params.device
-        return self.terms(params, batch["points"].to(dev), st, self.patch_mask(batch["meta"], dev), weights,
-                          self.groups(batch, dev) if training else None,
-                          self.match_normals if training else 0.0)  # fmt: skip
+        return self.terms(
+            params,
+            batch["points"].to(dev),
+            st,
+            self.patch_mask(batch["meta"], dev),
+            weights,
+            self.groups(batch, dev) if training else None,
+            self.match_normals if training else 0.0,
+        )
 
     def terms(
-        self, params: Tensor, points: Tensor, st: Tensor, mask: Tensor | None, weights: LossWeights,
-        groups: Groups | None = None, match_normals: float = 0.0,
-    ) -> dict[str, Tensor]:  # fmt: skip
+        self,
+        params: Tensor,
+        points: Tensor,
+        st: Tensor,
+        mask: Tensor | None,
+        weights: LossWeights,
+        groups: Groups | None = None,
+        match_normals: float = 0.0,
+    ) -> dict[str, Tensor]:
         """Each term per batch item (B,) for network outputs ``params (B, D)`` and target
         ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped."""
         st = st.to(params.device)
@@ -115,12 +127,21 @@ class Objective:
         if weights.template_normal:
             template_normals = evaluate_patches(self.template_patches.to(params.device), st).normals[0]
         return loss_terms(
-            self.template.patches_from_params(params), st, points[..., :3], points[..., 3:], weights,
-            patch_mask=mask, template_normals=template_normals,
+            self.template.patches_from_params(params),
+            st,
+            points[..., :3],
+            points[..., 3:],
+            weights,
+            patch_mask=mask,
+            template_normals=template_normals,
             control_points=self.template.points_from_params(params) if self.sym.numel() else None,
-            symmetry_pairs=self.sym if self.sym.numel() else None, symmetry_valid=self.symmetry_valid(mask),
-            plane_x=self.plane_x, collision=self.pairs, groups=groups, match_normals=match_normals,
-        )  # fmt: skip
+            symmetry_pairs=self.sym if self.sym.numel() else None,
+            symmetry_valid=self.symmetry_valid(mask),
+            plane_x=self.plane_x,
+            collision=self.pairs,
+            groups=groups,
+            match_normals=match_normals,
+        )
 
 
 def _patch_point_incidence(template: Template) -> Tensor:

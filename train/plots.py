@@ -27,7 +27,7 @@ def plot_losses(csv_path: str | Path, png_path: str | Path) -> None:
     cols = min(4, len(keys))
     rows_n = -(-len(keys) // cols)
     fig, axes = plt.subplots(rows_n, cols, figsize=(3.2 * cols, 2.6 * rows_n), squeeze=False)
-    for ax in axes.flat[len(keys):]:
+    for ax in axes.flat[len(keys) :]:
         ax.axis("off")
     for ax, k in zip(axes.flat, keys):
         points = [(step, float(r[k])) for step, r in zip(steps, rows) if r[k]]

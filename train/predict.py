@@ -24,14 +24,14 @@ from train.data import to_network
 from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
 from train.export.iges import write_iges
+from train.export.kernel_check import KernelVerdict, solid_verdict
 from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
 from train.export.units import CadUnits
-from train.export.kernel_check import KernelVerdict, solid_verdict
 from train.fit import load_run
-from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.geometry.intersections import Intersections, mesh_intersections
+from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.templates import FreePoint, JunctionPoint, Template, save_template
 
 
@@ -79,8 +79,9 @@ def predicted_template(template: Template, params: torch.Tensor) -> Template:
             points.append(FreePoint(tuple(float(x) for x in pos[i])))
         else:
             points.append(JunctionPoint(p.curve, float(torch.sigmoid(params[offsets[i]].double()))))
-    return dataclasses.replace(template, points=points, name=f"{template.name}-prediction",
-                               metadata={**template.metadata, "predicted": True})  # fmt: skip
+    return dataclasses.replace(
+        template, points=points, name=f"{template.name}-prediction", metadata={**template.metadata, "predicted": True}
+    )
 
 
 def mesh_problems(edges: dict, kernel: KernelVerdict, free_edges: int) -> list[str]:
@@ -89,7 +90,9 @@ def mesh_problems(edges: dict, kernel: KernelVerdict, free_edges: int) -> list[s
     CAD program runs it), not the triangle mesh's, which misses shallow crossings."""
     problems = []
     if not edges["watertight"]:
-        problems.append(f"mesh not watertight ({edges['boundary_edges']} boundary, {edges['nonmanifold_edges']} non-manifold edges)")
+        problems.append(
+            f"mesh not watertight ({edges['boundary_edges']} boundary, {edges['nonmanifold_edges']} non-manifold edges)"
+        )
     if not kernel.solid:
         problems.append(f"STEP is an open shell, not a solid ({free_edges} free edges)")
     if not kernel.clean:
@@ -99,7 +102,9 @@ def mesh_problems(edges: dict, kernel: KernelVerdict, free_edges: int) -> list[s
     return problems
 
 
-def _obj_header(edges: dict, hits: Intersections, kernel: KernelVerdict, units: CadUnits, problems: list[str]) -> list[str]:
+def _obj_header(
+    edges: dict, hits: Intersections, kernel: KernelVerdict, units: CadUnits, problems: list[str]
+) -> list[str]:
     pairs = " ".join(f"{a}-{b}" for a, b in kernel.patch_pairs)
     return [
         "sketch2patch prediction mesh; model frame (unit-sphere normalized)",
@@ -112,7 +117,11 @@ def _obj_header(edges: dict, hits: Intersections, kernel: KernelVerdict, units: 
 
 
 def export_patches(
-    patches: np.ndarray, out: str | Path, units: CadUnits = CadUnits(), quad_alpha: float = 12.0, tri_alpha: float = 40.0
+    patches: np.ndarray,
+    out: str | Path,
+    units: CadUnits = CadUnits(),
+    quad_alpha: float = 12.0,
+    tri_alpha: float = 40.0,
 ) -> dict:
     """All file exports of one patch set; returns a summary (counts, mesh checks, CAD units)."""
     out = Path(out)
@@ -140,8 +149,11 @@ def export_patches(
         "quads": int(len(qm.faces)),
         "triangles": int(len(tris)),
         "mesh": {**edges, **hits.summary()},
-        "cad_kernel": {"self_interferences": kernel.faulty, "patch_pairs": [list(p) for p in kernel.patch_pairs],
-                       "folded_patches": kernel.folded_patches},
+        "cad_kernel": {
+            "self_interferences": kernel.faulty,
+            "patch_pairs": [list(p) for p in kernel.patch_pairs],
+            "folded_patches": kernel.folded_patches,
+        },
         "intersecting_patch_pairs": [list(p) for p in kernel.patch_pairs],
         "step": "solid" if sewn.solid else f"open shell, {sewn.free_edges} free edges",
         "cad_units": units.describe(),

@@ -20,8 +20,11 @@ _COSINE = dict(lr_schedule="cosine")
 
 # category -> (fields on top of _SHARED, loss weights on top of the template's, what it is)
 _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
-    "airplane": (dict(lr=3e-5, ema=0.999, contrast=1.0, steps=8000), {"collision": 3.0},
-                 "constant 3e-5, collision weight 3, weight average 0.999"),
+    "airplane": (
+        dict(lr=3e-5, ema=0.999, contrast=1.0, steps=8000),
+        {"collision": 3.0},
+        "constant 3e-5, collision weight 3, weight average 0.999",
+    ),
     "bathtub": (dict(contrast=0.1, steps=5000, **_COSINE), {}, "contrast 0.1, cosine decay"),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
@@ -44,6 +47,12 @@ def recipe(name: str, dataset: str = "", out: str = "") -> FitSettings:
         raise ValueError(f"unknown recipe {name!r}: expected one of {', '.join(RECIPES)}")
     fields, weights, _ = _RECIPES[name]
     tpl = load_template(name)
-    return FitSettings(dataset=dataset, category=name, template=name, out=out, **{**_SHARED, **fields},
-                       match_normals=tpl.match_normals, weights=template_weights(tpl.regularizers, weights))
-
+    return FitSettings(
+        dataset=dataset,
+        category=name,
+        template=name,
+        out=out,
+        **{**_SHARED, **fields},
+        match_normals=tpl.match_normals,
+        weights=template_weights(tpl.regularizers, weights),
+    )

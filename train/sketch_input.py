@@ -72,7 +72,7 @@ def decode(data: bytes, name: str = "image") -> np.ndarray:
     if img.ndim == 2:
         return img
     channels = img.shape[2]
-    colour, alpha = (img[..., :3], img[..., 3]) if channels == 4 else (img[..., :min(channels, 3)], None)
+    colour, alpha = (img[..., :3], img[..., 3]) if channels == 4 else (img[..., : min(channels, 3)], None)
     grey = colour[..., 0] if colour.shape[2] == 1 else cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)
     if alpha is not None:  # a transparent background is paper, not black
         grey = grey * alpha + (1.0 - alpha)
@@ -129,7 +129,7 @@ def frame_square(dark: np.ndarray, box: tuple[int, int, int, int], extent: float
     # the part of the square that lies on the image (the rest is white paper)
     sx0, sy0 = max(ox, 0), max(oy, 0)
     sx1, sy1 = min(ox + side, dark.shape[1]), min(oy + side, dark.shape[0])
-    out[sy0 - oy:sy1 - oy, sx0 - ox:sx1 - ox] = dark[sy0:sy1, sx0:sx1]
+    out[sy0 - oy : sy1 - oy, sx0 - ox : sx1 - ox] = dark[sy0:sy1, sx0:sx1]
     return out
 
 
@@ -153,8 +153,9 @@ def normalize_sketch(data: bytes, size: int, framing: Framing = Framing(), name:
     source_size, f = [int(grey.shape[1]), int(grey.shape[0])], 1.0
     if max(grey.shape) > WORK_SIDE:  # a photo's resolution adds nothing at the network's size
         f = WORK_SIDE / max(grey.shape)
-        grey = cv2.resize(grey, (max(1, round(grey.shape[1] * f)), max(1, round(grey.shape[0] * f))),
-                          interpolation=cv2.INTER_AREA)
+        grey = cv2.resize(
+            grey, (max(1, round(grey.shape[1] * f)), max(1, round(grey.shape[0] * f))), interpolation=cv2.INTER_AREA
+        )
     dark, inverted = level_paper(grey)
     mask = ink_mask(dark)
     share = float(mask.mean())
@@ -162,8 +163,7 @@ def normalize_sketch(data: bytes, size: int, framing: Framing = Framing(), name:
         raise SketchError(f"{name}: no drawing found (ink covers {100 * share:.3f} % of the image)")
     ys, xs = np.nonzero(mask)
     box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
-    square = frame_square(np.where(cv2.dilate(mask.astype(np.uint8), None) > 0, dark, 0.0), box,
-                                 framing.extent)
+    square = frame_square(np.where(cv2.dilate(mask.astype(np.uint8), None) > 0, dark, 0.0), box, framing.extent)
     side = square.shape[0]
     interp = cv2.INTER_AREA if side > size else cv2.INTER_LINEAR
     small = cv2.resize(square, (size, size), interpolation=interp)
@@ -175,9 +175,15 @@ def normalize_sketch(data: bytes, size: int, framing: Framing = Framing(), name:
         gain = framing.darkness / max(float(small[ink].mean()), 1e-3)
         small = np.clip(small * gain, 0.0, 1.0)
     image = np.round(255.0 * (1.0 - small)).astype(np.uint8)
-    report = {"source_size": source_size, "crop_box": [int(round(v / f)) for v in box],
-              "scale": size * f / side, "inverted": inverted, "ink_share": round(share, 6),
-              "thinning_passes": passes, "darkness_gain": round(gain, 4)}
+    report = {
+        "source_size": source_size,
+        "crop_box": [int(round(v / f)) for v in box],
+        "scale": size * f / side,
+        "inverted": inverted,
+        "ink_share": round(share, 6),
+        "thinning_passes": passes,
+        "darkness_gain": round(gain, 4),
+    }
     return Normalized(image, report)
 
 

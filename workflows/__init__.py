@@ -1,4 +1,5 @@
 """Luigi tasks (`luigi --module workflows BuildDataset --local-scheduler`)."""
+
 import os
 import sys
 
@@ -24,5 +25,12 @@ if "luigi" in os.path.basename(sys.argv[0]) or sys.argv[0].endswith(os.path.join
     Console.install()  # progress line, luigi.log in the work folder, summary at exit
     warm_stage_code()
 
-__all__ = ["AugmentBatch", "BuildCategory", "BuildDataset", "CategoryShards", "PrepareBatch",
-           "RenderBatch", "SourceList"]
+__all__ = [
+    "AugmentBatch",
+    "BuildCategory",
+    "BuildDataset",
+    "CategoryShards",
+    "PrepareBatch",
+    "RenderBatch",
+    "SourceList",
+]

@@ -84,8 +84,9 @@ class BuildSettings:
     labels_dir: str = ""  # file source: folder of points/<id>.pts + points_label/<id>.seg (ShapeNet-part)
     work_dir: Path = DEFAULT_WORK_DIR  # stage outputs, keyed by settings (never part of a hash)
     dataset_dir: Path = DEFAULT_DATASET_DIR  # shards and manifest.json
-    batch_size: int = dataclasses.field(default=16, metadata={
-        "help": "models per batch task", "significant": False})  # scheduling only, never outputs
+    batch_size: int = dataclasses.field(
+        default=16, metadata={"help": "models per batch task", "significant": False}
+    )  # scheduling only, never outputs
 
     # ---- per-stage settings
     @property
@@ -96,12 +97,15 @@ class BuildSettings:
         return from_dict(PrepareSettings, _one_spelling({"seed": self.seed}, self.prepare_overrides))
 
     def render_settings(self) -> RenderSettings:
-        return from_dict(RenderSettings, _one_spelling({"views": self.views, "image_size": self.image_size},
-                                                       self.render_overrides))
+        return from_dict(
+            RenderSettings, _one_spelling({"views": self.views, "image_size": self.image_size}, self.render_overrides)
+        )
 
     def augment_settings(self) -> AugmentSettings:
-        return from_dict(AugmentSettings, _one_spelling({"variants": self.variants, "out_size": self.out_size},
-                                                        self.augment_overrides))
+        return from_dict(
+            AugmentSettings,
+            _one_spelling({"variants": self.variants, "out_size": self.out_size}, self.augment_overrides),
+        )
 
     def shard_settings(self) -> ShardSettings:
         return from_dict(ShardSettings, parse_json_object(self.shard_overrides))
@@ -116,8 +120,9 @@ class BuildSettings:
             raise ValueError(f"must be one of {', '.join(PART_LABEL_CHOICES)}, got {self.part_labels!r}")
         labels_dir = str(Path(self.labels_dir).resolve()) if self.labels_dir else ""
         part_map = _part_map(self.part_map) if self.part_map else ()
-        return PartLabelSettings(segmentation=self.part_labels == "segmentation", part_map=part_map,
-                                 labels_dir=labels_dir)
+        return PartLabelSettings(
+            segmentation=self.part_labels == "segmentation", part_map=part_map, labels_dir=labels_dir
+        )
 
     # ---- source
     @property
@@ -147,24 +152,31 @@ class BuildSettings:
         # a file source's prepare writes part labels: the map's content and the choice key it
         # (a changed map rebuilds); the "parts" entry also retires folders of older code,
         # which wrote no labels, without touching the procedural key
-        return stage_key("prepare", {**settings_dict(self.prepare_settings()), "parts": parts.key()},
-                         self.source_key())
+        return stage_key("prepare", {**settings_dict(self.prepare_settings()), "parts": parts.key()}, self.source_key())
 
     def render_key(self) -> str:
-        return stage_key("render", {"render": settings_dict(self.render_settings()), "seed": self.seed},
-                         self.prepare_key())
+        return stage_key(
+            "render", {"render": settings_dict(self.render_settings()), "seed": self.seed}, self.prepare_key()
+        )
 
     def augment_key(self) -> str:
-        return stage_key("augment", {"augment": settings_dict(self.augment_settings()), "seed": self.seed},
-                         self.render_key())
+        return stage_key(
+            "augment", {"augment": settings_dict(self.augment_settings()), "seed": self.seed}, self.render_key()
+        )
 
     def shards_key(self) -> str:
-        return stage_key("shards", {"shards": settings_dict(self.shard_settings()), "seed": self.seed},
-                         self.augment_key())
+        return stage_key(
+            "shards", {"shards": settings_dict(self.shard_settings()), "seed": self.seed}, self.augment_key()
+        )
 
     def stage_dir(self, stage: str) -> Path:
-        key = {"source": self.source_key, "prepare": self.prepare_key, "render": self.render_key,
-               "augment": self.augment_key, "shards": self.shards_key}[stage]()
+        key = {
+            "source": self.source_key,
+            "prepare": self.prepare_key,
+            "render": self.render_key,
+            "augment": self.augment_key,
+            "shards": self.shards_key,
+        }[stage]()
         return Path(self.work_dir) / key
 
     # ---- what the manifest records

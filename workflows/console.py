@@ -26,11 +26,11 @@ from typing import Callable, TextIO
 
 import luigi
 
-from workflows.build_settings import BuildSettings
 from pipeline.core.records import model_dir
 from pipeline.core.schema import FRAGMENT, MANIFEST, RECORD, SPLITS
 from pipeline.dataset.manifest import read_manifest
 from workflows import steps
+from workflows.build_settings import BuildSettings
 from workflows.validate import BuildParameterError
 
 LOG_NAME = "luigi.log"
@@ -113,6 +113,7 @@ def _names(folder: Path) -> Callable[[], frozenset[str]]:
             return frozenset(os.listdir(folder))
         except FileNotFoundError:
             return frozenset()
+
     return read
 
 
@@ -133,8 +134,10 @@ class _StageBatches:
     def start(self, batch: int) -> None:
         if batch not in self.finished and batch not in self.running:
             models = steps.batch_models(self.s, self.lst, batch)
-            self.running[batch] = ([model_dir(self.root, self.lst["category"], m["work_id"]) / RECORD
-                                    for m in models], set())
+            self.running[batch] = (
+                [model_dir(self.root, self.lst["category"], m["work_id"]) / RECORD for m in models],
+                set(),
+            )
 
     def done(self) -> int:
         names = self.names.get()
@@ -167,8 +170,10 @@ class StageCounter:
     def __init__(self, s: BuildSettings, listings: list[dict], task_ids: dict[str, tuple[str, str, int]]) -> None:
         self.s, self.listings, self.task_ids = s, listings, task_ids
         self.total = sum(len(lst["models"]) for lst in listings)
-        self.stages = {stage: {lst["category"]: _StageBatches(s, root, lst) for lst in listings}
-                       for stage, root in ((x, s.stage_dir(x)) for x in STAGES)}
+        self.stages = {
+            stage: {lst["category"]: _StageBatches(s, root, lst) for lst in listings}
+            for stage, root in ((x, s.stage_dir(x)) for x in STAGES)
+        }
         runs = Path(s.work_dir) / steps.RUNS
         self.runs = _Cached((runs,), _names(runs))
         self.runs_seen: frozenset[str] = frozenset()
@@ -210,8 +215,11 @@ def batch_task_ids(root: luigi.Task, listings: list[dict]) -> dict[str, tuple[st
 
 def _clock(seconds: float) -> str:
     seconds = int(seconds)
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}" if seconds >= 3600 \
+    return (
+        f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+        if seconds >= 3600
         else f"{seconds // 60}:{seconds % 60:02d}"
+    )
 
 
 class Progress:
@@ -304,8 +312,9 @@ class Console:
         self.buffer.flushLevel = logging.DEBUG  # from now on every record goes straight through
         self.listings = root.listings()
         self.counter = None
-        self.write(f"building {', '.join(root.category_list())} from {s.source} "
-                   f"(Luigi log: {self.log_path})", final=True)
+        self.write(
+            f"building {', '.join(root.category_list())} from {s.source} (Luigi log: {self.log_path})", final=True
+        )
         self.thread = threading.Thread(target=self._poll, daemon=True)
         self.thread.start()
 
@@ -376,9 +385,11 @@ def _refuse_loudly(con: Console) -> None:
     def acquire_for(pid_dir: str, num_available: int = 1, kill_signal=None) -> bool:
         if acquire(pid_dir, num_available, kill_signal):
             return True
-        line = ("error: not started: the same build command is already running on this machine (pid above, "
-                "Luigi's lock); nothing was built. Wait for it to finish, or add --no-lock to start a second "
-                "worker of a build shared through a central scheduler")
+        line = (
+            "error: not started: the same build command is already running on this machine (pid above, "
+            "Luigi's lock); nothing was built. Wait for it to finish, or add --no-lock to start a second "
+            "worker of a build shared through a central scheduler"
+        )
         con.failures.append(line)
         con.write(wrap(line), final=True)
         raise SystemExit(LOCK_REFUSED_EXIT)
@@ -423,8 +434,10 @@ def summary(s: BuildSettings, categories: list[str]) -> str:
             continue
         built += c["models_built"]
         failed += c["models_failed"]
-        lines.append(f"{name:<12} {c['models_built']:>5} {c['models_failed']:>6} "
-                     + " ".join(f"{c['splits'][x]['samples']:>5}" for x in SPLITS))
+        lines.append(
+            f"{name:<12} {c['models_built']:>5} {c['models_failed']:>6} "
+            + " ".join(f"{c['splits'][x]['samples']:>5}" for x in SPLITS)
+        )
     for name in categories:
         c = m["categories"].get(name) or {"failed": []}
         for f in c["failed"][:FIRST_FAILURES]:

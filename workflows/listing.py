@@ -24,12 +24,12 @@ import os
 import stat
 from pathlib import Path
 
-from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import read_json, write_json
+from pipeline.core.hashing import file_sha256
 from pipeline.core.records import ModelRef
 from pipeline.core.stage_keys import settings_hash
-from pipeline.core.hashing import file_sha256
 from pipeline.sources.mesh_io import gltf_external_files
+from workflows.build_settings import BuildSettings
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +72,9 @@ def file_key(path: Path, cache: dict, cache_name: str) -> FileKey:
     except OSError:
         try:
             lst = os.lstat(path)
-            return _stat_key(f"missing:{lst.st_mode}:{lst.st_mtime_ns}:"
-                             f"{os.readlink(path) if stat.S_ISLNK(lst.st_mode) else ''}")
+            return _stat_key(
+                f"missing:{lst.st_mode}:{lst.st_mtime_ns}:{os.readlink(path) if stat.S_ISLNK(lst.st_mode) else ''}"
+            )
         except OSError:
             return _stat_key("missing")
     if not stat.S_ISREG(st.st_mode):
@@ -134,8 +135,10 @@ def _procedural_list(work_dir: str, seed: int, limit: int | None, category: str,
 
     folder = procedural_source_dir(Path(work_dir), seed) / category
     count = limit if limit is not None else DEFAULT_PROCEDURAL_COUNT
-    models = [{"model_id": f"{i:05d}", "work_id": f"{i:05d}", "path": str(folder / f"{i:05d}.obj"),
-               "source": "procedural"} for i in range(count)]
+    models = [
+        {"model_id": f"{i:05d}", "work_id": f"{i:05d}", "path": str(folder / f"{i:05d}.obj"), "source": "procedural"}
+        for i in range(count)
+    ]
     return {"category": category, "key": key, "models": models}
 
 
@@ -151,8 +154,12 @@ def mark_duplicates(models: list[dict], keys: list[FileKey], root: str) -> None:
         kept = first.setdefault(k.sha, m)
         if kept is not m:
             m["duplicate_of"] = Path(os.path.relpath(kept["path"], root)).as_posix()
-            log.warning("%s is a copy of %s (same content): only %s is built",
-                        os.path.relpath(m["path"], root), m["duplicate_of"], m["duplicate_of"])
+            log.warning(
+                "%s is a copy of %s (same content): only %s is built",
+                os.path.relpath(m["path"], root),
+                m["duplicate_of"],
+                m["duplicate_of"],
+            )
 
 
 def duplicate_outcome(m: dict) -> dict | None:
@@ -160,8 +167,13 @@ def duplicate_outcome(m: dict) -> dict | None:
     failed at the "source" stage, with the reason naming the file it copies."""
     if "duplicate_of" not in m:
         return None
-    return {"model_id": m["model_id"], "work_id": m["work_id"], "stage": "source", "status": "failed",
-            "error": {"path": m["path"], "reason": f"duplicate of {m['duplicate_of']} (same content)"}}
+    return {
+        "model_id": m["model_id"],
+        "work_id": m["work_id"],
+        "stage": "source",
+        "status": "failed",
+        "error": {"path": m["path"], "reason": f"duplicate of {m['duplicate_of']} (same content)"},
+    }
 
 
 def current_listing(s: BuildSettings, category: str) -> dict:
@@ -179,8 +191,10 @@ def current_listing(s: BuildSettings, category: str) -> dict:
     before = dict(cache)
     root = os.path.abspath(s.source)
     keys = [model_key(Path(r.path), cache, root) for r in refs]
-    models = [{"model_id": r.model_id, "work_id": work_id(r.model_id, k.sha), "path": str(r.path),
-               "source": r.source} for r, k in zip(refs, keys)]
+    models = [
+        {"model_id": r.model_id, "work_id": work_id(r.model_id, k.sha), "path": str(r.path), "source": r.source}
+        for r, k in zip(refs, keys)
+    ]
     mark_duplicates(models, keys, root)
     if cache != before:
         write_json(cache_path, cache)

@@ -44,8 +44,10 @@ def main(argv: list[str] | None = None) -> int:
     clean = console.finish()
     secs = steps.stage_seconds(task.build, task.listings())
     busy = sum(secs.values()) or 1.0
-    print("stage time (summed over workers): " + ", ".join(
-        f"{k} {v:.0f} s ({100 * v / busy:.0f}%)" for k, v in secs.items()))
+    print(
+        "stage time (summed over workers): "
+        + ", ".join(f"{k} {v:.0f} s ({100 * v / busy:.0f}%)" for k, v in secs.items())
+    )
     print(f"{'built' if ok and clean else 'FAILED'} in {time.perf_counter() - t0:.0f} s")
     return 0 if ok and clean else 1
 

@@ -22,8 +22,10 @@ def luigi_parameters(cls: type) -> dict[str, luigi.Parameter]:
     out = {}
     for f in cli_fields(cls):
         default = field_default(f)
-        kw: dict[str, Any] = {"description": field_help(cls, f) or None,
-                              "significant": f.metadata.get("significant", True)}
+        kw: dict[str, Any] = {
+            "description": field_help(cls, f) or None,
+            "significant": f.metadata.get("significant", True),
+        }
         if default is not dataclasses.MISSING:
             kw["default"] = str(default) if isinstance(default, Path) else default
         out[flag_name(f)] = _LUIGI_TYPES.get(field_types(cls)[f.name], luigi.Parameter)(**kw)
@@ -32,11 +34,13 @@ def luigi_parameters(cls: type) -> dict[str, luigi.Parameter]:
 
 def with_parameters(cls: type):
     """Class decorator: the task gets ``luigi_parameters(cls)`` as its parameters."""
+
     def add(task: type[luigi.Task]) -> type[luigi.Task]:
         for name, param in luigi_parameters(cls).items():
             setattr(task, name, param)
             param.__set_name__(task, name)  # what a class body does for its attributes
         return task
+
     return add
 
 
@@ -51,11 +55,19 @@ def add_task_arguments(parser: argparse.ArgumentParser, task: type[luigi.Task]) 
     for name, param in task.get_params():
         default = getattr(param, "_default", luigi.parameter._no_value)
         shown = "" if default in (luigi.parameter._no_value, "", False) else f" (default: {default})"
-        kw: dict[str, Any] = {"dest": name, "default": argparse.SUPPRESS,
-                              "help": ((param.description or "") + shown).strip() or None}
+        kw: dict[str, Any] = {
+            "dest": name,
+            "default": argparse.SUPPRESS,
+            "help": ((param.description or "") + shown).strip() or None,
+        }
         if isinstance(param, luigi.BoolParameter):
             kw["action"] = "store_true"
         else:
-            kw["type"] = int if isinstance(param, luigi.IntParameter) else \
-                float if isinstance(param, luigi.FloatParameter) else str
+            kw["type"] = (
+                int
+                if isinstance(param, luigi.IntParameter)
+                else float
+                if isinstance(param, luigi.FloatParameter)
+                else str
+            )
         parser.add_argument("--" + name.replace("_", "-"), **kw)

@@ -36,11 +36,15 @@ def _check_private(path: Path, what: str) -> None:
     if stat.S_ISLNK(st.st_mode):
         raise UnsafeStateDir(f"{path}: {what} is a symbolic link; use a real folder")
     if st.st_uid != os.getuid():
-        raise UnsafeStateDir(f"{path}: {what} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}); "
-                             "luigid would load a pickle another user can write")
+        raise UnsafeStateDir(
+            f"{path}: {what} belongs to uid {st.st_uid}, not to you (uid {os.getuid()}); "
+            "luigid would load a pickle another user can write"
+        )
     if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
-        raise UnsafeStateDir(f"{path}: {what} is writable by group or others (mode {stat.S_IMODE(st.st_mode):o}); "
-                             f"run `chmod go-w {path}` or choose another --state-dir")
+        raise UnsafeStateDir(
+            f"{path}: {what} is writable by group or others (mode {stat.S_IMODE(st.st_mode):o}); "
+            f"run `chmod go-w {path}` or choose another --state-dir"
+        )
 
 
 def private_state_dir(path: Path) -> Path:
@@ -73,8 +77,16 @@ def is_loopback(address: str) -> bool:
 def luigid_argv(state_dir: Path, address: str, port: int, background: bool = False) -> list[str]:
     """The arguments luigid gets: the address always explicit (luigid's own default is every
     interface), state file and log inside the private folder."""
-    argv = ["--address", address, "--port", str(port), "--state-path", str(state_dir / STATE_FILE),
-            "--logdir", str(state_dir / LOG_DIR)]
+    argv = [
+        "--address",
+        address,
+        "--port",
+        str(port),
+        "--state-path",
+        str(state_dir / STATE_FILE),
+        "--logdir",
+        str(state_dir / LOG_DIR),
+    ]
     if background:
         argv += ["--background", "--pidfile", str(state_dir / "luigid.pid")]
     return argv
@@ -82,13 +94,20 @@ def luigid_argv(state_dir: Path, address: str, port: int, background: bool = Fal
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m workflows.scheduler", description=__doc__.split("\n\n")[0])
-    p.add_argument("--address", default=LOOPBACK,
-                   help="interface to listen on (default 127.0.0.1: this machine only). Anything else must be "
-                        "on a network where every host is trusted: luigid has no authentication")
+    p.add_argument(
+        "--address",
+        default=LOOPBACK,
+        help="interface to listen on (default 127.0.0.1: this machine only). Anything else must be "
+        "on a network where every host is trusted: luigid has no authentication",
+    )
     p.add_argument("--port", type=int, default=8082)
-    p.add_argument("--state-dir", type=Path, default=None,
-                   help=f"folder for {STATE_FILE} and {LOG_DIR}/ (default: {default_state_dir()}); "
-                        "created with mode 0700, refused when another user owns it or may write to it")
+    p.add_argument(
+        "--state-dir",
+        type=Path,
+        default=None,
+        help=f"folder for {STATE_FILE} and {LOG_DIR}/ (default: {default_state_dir()}); "
+        "created with mode 0700, refused when another user owns it or may write to it",
+    )
     p.add_argument("--background", action="store_true", help="daemonize (pid file in the state folder)")
     a = p.parse_args(argv)
     try:
@@ -97,10 +116,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"python -m workflows.scheduler: error: {exc}", file=sys.stderr)
         return 2
     if not is_loopback(a.address):
-        print(f"warning: luigid listens on {a.address}: anyone who reaches port {a.port} there can read and "
-              "change the build's tasks (no authentication). Keep it on a trusted network, behind a "
-              "firewall, or on 127.0.0.1 with SSH tunnels from the workers (docs/distributed.md).",
-              file=sys.stderr)
+        print(
+            f"warning: luigid listens on {a.address}: anyone who reaches port {a.port} there can read and "
+            "change the build's tasks (no authentication). Keep it on a trusted network, behind a "
+            "firewall, or on 127.0.0.1 with SSH tunnels from the workers (docs/distributed.md).",
+            file=sys.stderr,
+        )
     from luigi.cmdline import luigid
 
     print(f"luigid on {a.address}:{a.port}, state and log in {state_dir}", file=sys.stderr, flush=True)

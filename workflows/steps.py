@@ -19,15 +19,22 @@ import time
 from pathlib import Path
 
 from pipeline.core.atomic import read_json, storage_error, write_json
-from workflows.build_settings import BuildSettings
-from pipeline.core.stage_keys import settings_hash
-from workflows.listing import duplicate_outcome, model_ref
+from pipeline.core.hashing import file_sha256
 from pipeline.core.records import Progress, model_dir
 from pipeline.core.schema import FRAGMENT
-from pipeline.dataset.manifest import (build_manifest, category_fragment, content_checksum, read_fragment,
-                               read_manifest, write_fragment, write_manifest)
-from pipeline.core.hashing import file_sha256
+from pipeline.core.stage_keys import settings_hash
+from pipeline.dataset.manifest import (
+    build_manifest,
+    category_fragment,
+    content_checksum,
+    read_fragment,
+    read_manifest,
+    write_fragment,
+    write_manifest,
+)
 from pipeline.dataset.shards import ModelDirs, list_shards, retire_category, write_category_shards
+from workflows.build_settings import BuildSettings
+from workflows.listing import duplicate_outcome, model_ref
 
 BATCHES = "_batches"
 RUNS = "_runs"
@@ -35,8 +42,9 @@ RUNS = "_runs"
 
 # ---------------------------------------------------------------- paths
 
+
 def batch_models(s: BuildSettings, lst: dict, batch: int) -> list[dict]:
-    return lst["models"][batch * s.batch_size:(batch + 1) * s.batch_size]
+    return lst["models"][batch * s.batch_size : (batch + 1) * s.batch_size]
 
 
 def batch_path(s: BuildSettings, stage: str, lst: dict, batch: int) -> Path:
@@ -58,25 +66,33 @@ def n_batches(n_models: int, batch_size: int) -> int:
 
 # ---------------------------------------------------------------- steps
 
+
 def write_source_list(s: BuildSettings, category: str) -> int:
     """Generate the procedural source's models and store their list (file sources store theirs
     while listing); returns the count."""
-    from workflows.listing import current_listing, list_path, procedural_tag
     from pipeline.sources.layouts import list_models
+    from workflows.listing import current_listing, list_path, procedural_tag
 
     if not s.is_procedural:
         return len(current_listing(s, category)["models"])
     refs = list_models(s.source, category, s.limit, s.seed, Path(s.work_dir))
-    write_json(list_path(s, category, procedural_tag(s)), {
-        "category": category,
-        "models": [{"model_id": r.model_id, "path": str(r.path), "source": r.source} for r in refs],
-    })
+    write_json(
+        list_path(s, category, procedural_tag(s)),
+        {
+            "category": category,
+            "models": [{"model_id": r.model_id, "path": str(r.path), "source": r.source} for r in refs],
+        },
+    )
     return len(refs)
 
 
 def _outcome(m: dict, stage: str, rec: dict | None) -> dict:
-    out = {"model_id": m["model_id"], "work_id": m["work_id"], "stage": stage,
-           "status": "failed" if rec is None else rec.get("status", "failed")}
+    out = {
+        "model_id": m["model_id"],
+        "work_id": m["work_id"],
+        "stage": stage,
+        "status": "failed" if rec is None else rec.get("status", "failed"),
+    }
     if rec is None:
         out["error"] = {"path": m["path"], "reason": "no record written"}
     elif out["status"] != "ok":
@@ -84,11 +100,16 @@ def _outcome(m: dict, stage: str, rec: dict | None) -> dict:
     return out
 
 
-def _write_batch(s: BuildSettings, stage: str, lst: dict, batch: int, outcomes: list[dict],
-                 t0: float, **extra) -> dict:
+def _write_batch(s: BuildSettings, stage: str, lst: dict, batch: int, outcomes: list[dict], t0: float, **extra) -> dict:
     # wall seconds are kept in the work folder only (never in shards or manifest) for stage shares
-    doc = {"stage": stage, "category": lst["category"], "batch": batch, "models": outcomes,
-           "seconds": round(time.perf_counter() - t0, 3), **extra}
+    doc = {
+        "stage": stage,
+        "category": lst["category"],
+        "batch": batch,
+        "models": outcomes,
+        "seconds": round(time.perf_counter() - t0, 3),
+        **extra,
+    }
     write_json(batch_path(s, stage, lst, batch), doc)
     return doc
 
@@ -97,8 +118,10 @@ def _upstream(s: BuildSettings, stage: str, lst: dict, batch: int) -> tuple[list
     """Models (list entries) that passed ``stage`` in this batch, and the outcomes of those that did not."""
     doc = read_json(batch_path(s, stage, lst, batch))
     passed = {m["work_id"] for m in doc["models"] if m["status"] == "ok"}
-    return ([m for m in batch_models(s, lst, batch) if m["work_id"] in passed],
-            [m for m in doc["models"] if m["status"] != "ok"])
+    return (
+        [m for m in batch_models(s, lst, batch) if m["work_id"] in passed],
+        [m for m in doc["models"] if m["status"] != "ok"],
+    )
 
 
 def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
@@ -108,14 +131,26 @@ def prepare_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     models = batch_models(s, lst, batch)
     copies = {m["work_id"]: duplicate_outcome(m) for m in models if duplicate_outcome(m)}  # failed, never built
     todo = [m for m in models if m["work_id"] not in copies]
-    records = iter(prepare_batch([model_ref(lst["category"], m) for m in todo], s.stage_dir("prepare"),
-                                 s.prepare_settings(), progress, s.part_label_settings()))
-    return _write_batch(s, "prepare", lst, batch,
-                        [copies.get(m["work_id"]) or _outcome(m, "prepare", next(records)) for m in models], t0)
+    records = iter(
+        prepare_batch(
+            [model_ref(lst["category"], m) for m in todo],
+            s.stage_dir("prepare"),
+            s.prepare_settings(),
+            progress,
+            s.part_label_settings(),
+        )
+    )
+    return _write_batch(
+        s,
+        "prepare",
+        lst,
+        batch,
+        [copies.get(m["work_id"]) or _outcome(m, "prepare", next(records)) for m in models],
+        t0,
+    )
 
 
-def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None,
-                crash_retries: int = 1) -> dict:
+def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None, crash_retries: int = 1) -> dict:
     """Render the batch's prepared models in one Blender process. If Blender crashes or hangs,
     the batch is retried ``crash_retries`` times (finished models keep their records, so a retry
     resumes); after that the models still unrendered are recorded failed with the cause."""
@@ -132,16 +167,35 @@ def render_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = No
     crashes: list[str] = []
     for attempt in range(crash_retries + 1 if items else 0):
         try:
-            records = render_batch(category, items, s.stage_dir("render"), s.render_settings(), s.seed,
-                                   progress, on_crash="record" if attempt == crash_retries else "raise")
+            records = render_batch(
+                category,
+                items,
+                s.stage_dir("render"),
+                s.render_settings(),
+                s.seed,
+                progress,
+                on_crash="record" if attempt == crash_retries else "raise",
+            )
             break
         except RenderBatchError as exc:
             crashes.append(str(exc))
             if progress is not None:
-                progress(0, len(items), f"render {category} batch {batch}: retry {attempt + 1}/{crash_retries} after: {exc}"[:300])
+                progress(
+                    0,
+                    len(items),
+                    f"render {category} batch {batch}: retry {attempt + 1}/{crash_retries} after: {exc}"[:300],
+                )
     outcomes = failed + [_outcome(m, "render", rec) for m, rec in zip(ok, records)]
-    return _write_batch(s, "render", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0,
-                        attempts=len(crashes) + bool(records), crashes=crashes)
+    return _write_batch(
+        s,
+        "render",
+        lst,
+        batch,
+        sorted(outcomes, key=lambda m: m["model_id"]),
+        t0,
+        attempts=len(crashes) + bool(records),
+        crashes=crashes,
+    )
 
 
 def augment_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
@@ -152,7 +206,9 @@ def augment_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     ok, failed = _upstream(s, "render", lst, batch)
     rend = s.stage_dir("render")
     items = [(m["work_id"], model_dir(rend, category, m["work_id"])) for m in ok]
-    records = augment_batch(category, items, s.stage_dir("augment"), s.augment_settings(), s.seed, progress) if items else []
+    records = (
+        augment_batch(category, items, s.stage_dir("augment"), s.augment_settings(), s.seed, progress) if items else []
+    )
     outcomes = failed + [_outcome(m, "augment", rec) for m, rec in zip(ok, records)]
     return _write_batch(s, "augment", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0)
 
@@ -173,32 +229,57 @@ def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
     for b in range(n_batches(n, s.batch_size)):
         good, bad = _upstream(s, "augment", lst, b)
         ok += good
-        failed += [{"model_id": m["model_id"], "stage": m["stage"],
-                    "path": s.portable_path(m["error"].get("path")), "reason": m["error"].get("reason")}
-                   for m in bad]
-    dirs = [ModelDirs(m["model_id"], model_dir(s.stage_dir("prepare"), category, m["work_id"]),
-                      model_dir(s.stage_dir("render"), category, m["work_id"]),
-                      model_dir(s.stage_dir("augment"), category, m["work_id"])) for m in ok]
+        failed += [
+            {
+                "model_id": m["model_id"],
+                "stage": m["stage"],
+                "path": s.portable_path(m["error"].get("path")),
+                "reason": m["error"].get("reason"),
+            }
+            for m in bad
+        ]
+    dirs = [
+        ModelDirs(
+            m["model_id"],
+            model_dir(s.stage_dir("prepare"), category, m["work_id"]),
+            model_dir(s.stage_dir("render"), category, m["work_id"]),
+            model_dir(s.stage_dir("augment"), category, m["work_id"]),
+        )
+        for m in ok
+    ]
     if progress is not None:
         progress(0, 1, f"shards {category}: packing {len(dirs)} models")
     holder: dict = {}
 
     def fragment(result) -> None:
-        holder["fragment"] = category_fragment(category, result, s.manifest_settings(),
-                                               s.category_settings_hash(), n, failed,
-                                               listing=listing_field(s, lst))
+        holder["fragment"] = category_fragment(
+            category,
+            result,
+            s.manifest_settings(),
+            s.category_settings_hash(),
+            n,
+            failed,
+            listing=listing_field(s, lst),
+        )
         write_fragment(Path(s.dataset_dir) / category, holder["fragment"])
 
     cat_dir = Path(s.dataset_dir) / category
     try:
-        result = write_category_shards(category, dirs, cat_dir, s.shard_settings(),
-                                       s.seed, s.shards_key(), s.portable_path, before_cleanup=fragment)
+        result = write_category_shards(
+            category,
+            dirs,
+            cat_dir,
+            s.shard_settings(),
+            s.seed,
+            s.shards_key(),
+            s.portable_path,
+            before_cleanup=fragment,
+        )
     except OSError as exc:  # tar writes bypass pipeline.core.atomic: name the folder and the problem
         raise storage_error(cat_dir, exc) from exc
     write_json(s.stage_dir("shards") / category / "_timing.json", {"seconds": round(time.perf_counter() - t0, 3)})
     if progress is not None:
-        progress(1, 1, f"shards {category}: {len(result.written)} shard(s) written, "
-                       f"{len(result.removed)} removed")
+        progress(1, 1, f"shards {category}: {len(result.written)} shard(s) written, {len(result.removed)} removed")
     return holder["fragment"]
 
 
@@ -207,8 +288,11 @@ def record_run(s: BuildSettings, task_id: str, event: str) -> Path:
     under ``<work>/_runs/<task_id>/`` (separate files, not appends, so it is safe on NFS).
     Lets a multi-worker build be audited: which worker ran which batch, and how often."""
     path = Path(s.work_dir) / RUNS / task_id / f"{socket.gethostname()}-{os.getpid()}.json"
-    doc = read_json(path) if path.exists() else {"task": task_id, "host": socket.gethostname(),
-                                                  "pid": os.getpid(), "events": []}
+    doc = (
+        read_json(path)
+        if path.exists()
+        else {"task": task_id, "host": socket.gethostname(), "pid": os.getpid(), "events": []}
+    )
     doc["events"].append({"event": event, "time": round(time.time(), 3)})
     write_json(path, doc)
     return path
@@ -226,11 +310,19 @@ def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
     out = {}
     for stage in ("prepare", "render", "augment"):
-        out[stage] = sum(read_json(p).get("seconds", 0.0) for lst in listings
-                         for b in range(n_batches(len(lst["models"]), s.batch_size))
-                         for p in [batch_path(s, stage, lst, b)] if p.exists())
-    out["shards"] = sum(read_json(p)["seconds"] for lst in listings
-                        for p in [s.stage_dir("shards") / lst["category"] / "_timing.json"] if p.exists())
+        out[stage] = sum(
+            read_json(p).get("seconds", 0.0)
+            for lst in listings
+            for b in range(n_batches(len(lst["models"]), s.batch_size))
+            for p in [batch_path(s, stage, lst, b)]
+            if p.exists()
+        )
+    out["shards"] = sum(
+        read_json(p)["seconds"]
+        for lst in listings
+        for p in [s.stage_dir("shards") / lst["category"] / "_timing.json"]
+        if p.exists()
+    )
     return out
 
 
@@ -301,10 +393,15 @@ def too_many_failures(s: BuildSettings, categories: list[str], fraction: float) 
         failed, requested = frag["models_failed"], frag["models_requested"]
         share = failed / requested if requested else 0.0
         if share > fraction:
-            out.append(f"{c}: {failed} of {requested} models failed ({100 * share:.0f}%) > --max-failed-fraction {fraction:g}")
+            out.append(
+                f"{c}: {failed} of {requested} models failed ({100 * share:.0f}%) > --max-failed-fraction {fraction:g}"
+            )
         elif not frag["models_built"]:
-            out.append(f"{c}: no model built, {failed} of {requested} models failed" if requested
-                       else f"{c}: no model built, the source has none")
+            out.append(
+                f"{c}: no model built, {failed} of {requested} models failed"
+                if requested
+                else f"{c}: no model built, the source has none"
+            )
     return out
 
 

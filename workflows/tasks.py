@@ -11,9 +11,9 @@ from typing import Iterator
 
 import luigi
 
+from workflows import lifetime, steps, validate
 from workflows.build_settings import BuildSettings
 from workflows.listing import current_listing, list_path, read_listing
-from workflows import lifetime, steps, validate
 from workflows.params import settings_values, with_parameters
 
 
@@ -84,8 +84,11 @@ class PrepareBatch(_ListedTask):
 class RenderBatch(_ListedTask):
     batch = luigi.IntParameter()
     resources = {"blender": 1}
-    crash_retries = luigi.IntParameter(default=1, significant=False,
-                                       description="re-runs of a batch whose Blender crashed or hung ([RenderBatch] in luigi.cfg)")
+    crash_retries = luigi.IntParameter(
+        default=1,
+        significant=False,
+        description="re-runs of a batch whose Blender crashed or hung ([RenderBatch] in luigi.cfg)",
+    )
 
     def requires(self):
         return self.clone(PrepareBatch)
@@ -116,8 +119,9 @@ class CategoryShards(_ListedTask):
     """The category's shards + category.json in the dataset folder, current for these settings
     and this model list; damaged or missing shards make it incomplete, so a re-run repairs them."""
 
-    verify = luigi.BoolParameter(default=False, significant=False,
-                                 description="check every shard's sha256, not only its size")
+    verify = luigi.BoolParameter(
+        default=False, significant=False, description="check every shard's sha256, not only its size"
+    )
 
     def requires(self):
         # Batches are static dependencies: with a central scheduler every worker then knows them
@@ -137,11 +141,17 @@ class _BuildRoot(_BuildTask):
     """What BuildCategory and BuildDataset share: the source lists, re-read on every run, and
     the failure threshold."""
 
-    verify = luigi.BoolParameter(default=False, significant=False,
-                                 description="check every shard's sha256 (default: sizes, and sha256 of shards edited after the build)")
-    max_failed_fraction = luigi.FloatParameter(default=1.0, significant=False,
-                                               description="fail when more than this fraction of a category's models failed "
-                                                           "(a category with no model built fails at any value)")
+    verify = luigi.BoolParameter(
+        default=False,
+        significant=False,
+        description="check every shard's sha256 (default: sizes, and sha256 of shards edited after the build)",
+    )
+    max_failed_fraction = luigi.FloatParameter(
+        default=1.0,
+        significant=False,
+        description="fail when more than this fraction of a category's models failed "
+        "(a category with no model built fails at any value)",
+    )
 
     def category_list(self) -> list[str]:
         raise NotImplementedError
@@ -160,8 +170,9 @@ class _BuildRoot(_BuildTask):
         return [self.clone(CategoryShards, category=lst["category"], listing=lst["key"]) for lst in self.listings()]
 
     def complete(self):
-        return (steps.manifest_is_current(self.build, self.listings(), self.verify)
-                and not steps.too_many_failures(self.build, self.category_list(), self.max_failed_fraction))
+        return steps.manifest_is_current(self.build, self.listings(), self.verify) and not steps.too_many_failures(
+            self.build, self.category_list(), self.max_failed_fraction
+        )
 
     def run(self):
         lifetime.die_with_parent()

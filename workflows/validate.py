@@ -11,8 +11,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from workflows.build_settings import PART_LABEL_CHOICES, BuildSettings
 from pipeline.core.settings_io import SettingError, flag_name, from_dict
+from workflows.build_settings import PART_LABEL_CHOICES, BuildSettings
 
 
 class BuildParameterError(ValueError):
@@ -21,11 +21,22 @@ class BuildParameterError(ValueError):
 
 _FIELDS = {f.name: f for f in dataclasses.fields(BuildSettings)}
 # smallest allowed value of each integer setting
-_MINIMUMS = {"models_per_category": 0, "batch_size": 1, "views": 1, "variants": 1, "image_size": 8,
-             "out_size": 8, "seed": 0}
+_MINIMUMS = {
+    "models_per_category": 0,
+    "batch_size": 1,
+    "views": 1,
+    "variants": 1,
+    "image_size": 8,
+    "out_size": 8,
+    "seed": 0,
+}
 # the per-stage settings each JSON parameter overrides
-_OVERRIDES = {"prepare_overrides": "prepare_settings", "render_overrides": "render_settings",
-              "augment_overrides": "augment_settings", "shard_overrides": "shard_settings"}
+_OVERRIDES = {
+    "prepare_overrides": "prepare_settings",
+    "render_overrides": "render_settings",
+    "augment_overrides": "augment_settings",
+    "shard_overrides": "shard_settings",
+}
 
 
 def flag(field: str) -> str:
@@ -58,7 +69,9 @@ def check_settings(s: BuildSettings) -> None:
     _check_part_labels(s)
     sh = s.shard_settings()
     if sh.max_samples_per_shard < 1 or sh.max_bytes_per_shard < 1 or sh.points < 1:
-        raise BuildParameterError("--shard-settings: max_samples_per_shard, max_bytes_per_shard and points must be >= 1")
+        raise BuildParameterError(
+            "--shard-settings: max_samples_per_shard, max_bytes_per_shard and points must be >= 1"
+        )
 
 
 def _check_part_labels(s: BuildSettings) -> None:
@@ -67,8 +80,9 @@ def _check_part_labels(s: BuildSettings) -> None:
     if s.is_procedural:
         for attr in ("part_map", "labels_dir"):
             if getattr(s, attr):
-                raise BuildParameterError(f"{flag(attr)}: applies to a file source (--source DIR); "
-                                          "procedural parts come from the generator")
+                raise BuildParameterError(
+                    f"{flag(attr)}: applies to a file source (--source DIR); procedural parts come from the generator"
+                )
         return
     if s.labels_dir and not Path(s.labels_dir).is_dir():
         raise BuildParameterError(f"{flag('labels_dir')}: {s.labels_dir!r} is not a folder")
@@ -99,7 +113,8 @@ def check_categories(s: BuildSettings, categories: list[str]) -> None:
     if unknown:
         raise BuildParameterError(
             f"--categories: unknown {', '.join(map(repr, unknown))} for source {s.source!r}; "
-            f"it has: {', '.join(offered) if offered else 'no category folders'}")
+            f"it has: {', '.join(offered) if offered else 'no category folders'}"
+        )
     if not categories:
         raise BuildParameterError(f"source {s.source!r} has no categories (expected <source>/<category>/ folders)")
     if not s.is_procedural:  # listing names only; the procedural source names its own models

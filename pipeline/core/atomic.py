@@ -23,7 +23,6 @@ import numpy as np
 
 from pipeline.core.canonical_json import canonical_dumps
 
-
 # errno → what the user should read (and do) when a write fails
 _STORAGE_PROBLEMS = {
     errno.ENOSPC: "disk full (no space left on device); free space or point --work-dir/--dataset-dir elsewhere",

@@ -108,8 +108,7 @@ def _encode_dict(o: dict, level: int, default: Callable[[Any], Any]) -> str:
             raise _Unhandled  # json.dumps converts (or rejects) such keys; leave it to it
     inner = "\n" + " " * (level + 1)
     sep = "," + inner
-    body = sep.join([encode_basestring_ascii(k) + ": " + _encode(v, level + 1, default)
-                     for k, v in sorted(o.items())])
+    body = sep.join([encode_basestring_ascii(k) + ": " + _encode(v, level + 1, default) for k, v in sorted(o.items())])
     return "{" + inner + body + "\n" + " " * level + "}"
 
 

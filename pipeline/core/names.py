@@ -35,9 +35,14 @@ def is_safe_component(name: str, leading: str = "") -> bool:
     """Whether ``name`` is used as it is: ASCII letters, digits, '.', '_', '-', at most MAX_LEN
     characters, starting with a letter, digit or '_' (none of ``leading``), not reserved, no
     trailing dot (Windows drops it)."""
-    return (bool(_SAFE.fullmatch(name)) and len(name) <= MAX_LEN and not name.endswith(".")
-            and name.casefold() not in RESERVED and not _WINDOWS.fullmatch(name)
-            and not (leading and name.startswith(tuple(leading))))
+    return (
+        bool(_SAFE.fullmatch(name))
+        and len(name) <= MAX_LEN
+        and not name.endswith(".")
+        and name.casefold() not in RESERVED
+        and not _WINDOWS.fullmatch(name)
+        and not (leading and name.startswith(tuple(leading)))
+    )
 
 
 def name_hash(name: str) -> str:

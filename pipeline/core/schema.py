@@ -154,14 +154,25 @@ META_FIELDS = tuple(f.name for f in dataclasses.fields(SampleMeta))
 # Top-level manifest.json, a category's category.json (also the manifest's entry for it), a
 # split of a category, and one shard. "listing" appears only for file sources.
 MANIFEST_FIELDS = ("format", "project_version", "settings", "settings_hash", "categories", "totals", "checksum")
-FRAGMENT_FIELDS = ("category", "settings", "settings_hash", "models_requested", "models_built", "models_failed",
-                   "failed", "splits", "listing", "checksum")
+FRAGMENT_FIELDS = (
+    "category",
+    "settings",
+    "settings_hash",
+    "models_requested",
+    "models_built",
+    "models_failed",
+    "failed",
+    "splits",
+    "listing",
+    "checksum",
+)
 SPLIT_FIELDS = ("samples", "shards")
 SHARD_FIELDS = ("name", "samples", "bytes", "sha256", "keys")
 FAILED_FIELDS = ("model_id", "stage", "path", "reason")
 
 
 # ---------------------------------------------------------------- part families
+
 
 def part_family(label: str) -> str:
     """``wing_l`` → ``wing``, ``engine0_r`` → ``engine``, ``foot_front_l`` → ``foot_front``."""

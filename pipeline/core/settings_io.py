@@ -33,6 +33,7 @@ class SettingError(ValueError):
 
 # ---------------------------------------------------------------- types
 
+
 @functools.lru_cache(maxsize=None)
 def field_types(cls: type) -> dict[str, Any]:
     """Each field's resolved type (annotations are strings under ``from __future__``)."""
@@ -57,14 +58,16 @@ def _kind(tp: Any) -> str:
         if len(args) == 2 and args[1] is Ellipsis:
             return "a list"
         return f"a list of {len(args)} values"
-    return {bool: "true/false", int: "an integer", float: "a number", str: "a string",
-            Path: "a path"}.get(tp, getattr(tp, "__name__", str(tp)))
+    return {bool: "true/false", int: "an integer", float: "a number", str: "a string", Path: "a path"}.get(
+        tp, getattr(tp, "__name__", str(tp))
+    )
 
 
 def _convert(owner: str, name: str, tp: Any, value: Any, current: Any = None) -> Any:
     """``value`` as a ``tp``, or SettingError naming ``owner.name``. Lists become tuples, ints
     become floats where a number is expected (so equal settings hash equally), dicts become
     nested settings (overriding ``current`` field by field when it is one)."""
+
     def bad() -> SettingError:
         return SettingError(f"{owner}.{name} must be {_kind(tp)}, got {value!r}", owner, name)
 
@@ -121,6 +124,7 @@ def _convert(owner: str, name: str, tp: Any, value: Any, current: Any = None) ->
 
 # ---------------------------------------------------------------- dicts
 
+
 def from_dict(cls: type[T], data: dict, base: T | None = None) -> T:
     """An instance of the frozen dataclass ``cls`` from ``data`` (e.g. parsed JSON), every value
     type-checked against its field's type; fields not in ``data`` keep ``base``'s values (default:
@@ -164,6 +168,7 @@ def parse_json_object(text: str | dict | None) -> dict:
 
 # ---------------------------------------------------------------- command lines
 
+
 @functools.lru_cache(maxsize=None)
 def field_comments(cls: type) -> dict[str, str]:
     """The comment ending each field's line in ``cls``'s body (``x: int = 3  # what x is``)."""
@@ -201,8 +206,7 @@ def field_default(field: dataclasses.Field) -> Any:
 def cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[dataclasses.Field]:
     """The fields a command line offers: all but ``skip`` and nested settings."""
     types_ = field_types(cls)
-    return [f for f in dataclasses.fields(cls)
-            if f.name not in skip and not dataclasses.is_dataclass(types_[f.name])]
+    return [f for f in dataclasses.fields(cls) if f.name not in skip and not dataclasses.is_dataclass(types_[f.name])]
 
 
 def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:

@@ -73,7 +73,9 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, width: int, height: int) ->
     # Barycentric weights are affine in the pixel centre: b = A * cx + B * cy + C per triangle.
     coef = []
     for i, j in ((1, 2), (2, 0)):
-        coef.append(((y[:, i] - y[:, j]) / safe, (x[:, j] - x[:, i]) / safe, (x[:, i] * y[:, j] - x[:, j] * y[:, i]) / safe))
+        coef.append(
+            ((y[:, i] - y[:, j]) / safe, (x[:, j] - x[:, i]) / safe, (x[:, i] * y[:, j] - x[:, j] * y[:, i]) / safe)
+        )
     live = np.nonzero(counts)[0]
     if len(live) == 0:
         return fid.reshape(height, width), zbuf.reshape(height, width)

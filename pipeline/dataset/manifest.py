@@ -40,8 +40,10 @@ def category_fragment(
     of the source list it was built from (file sources only: a changed folder changes it)."""
     failed = sorted(upstream_failed + result.failed, key=lambda f: (f["model_id"], f.get("stage", "")))
     splits = {
-        s: {"samples": sum(i.samples for i in result.shards.get(s, [])),
-            "shards": [i.to_json() for i in result.shards.get(s, [])]}
+        s: {
+            "samples": sum(i.samples for i in result.shards.get(s, [])),
+            "shards": [i.to_json() for i in result.shards.get(s, [])],
+        }
         for s in SPLITS
     }
     frag = {

@@ -16,8 +16,14 @@ from pipeline.core.errors import ModelError
 from pipeline.core.schema import part_family
 from pipeline.prepare.part_labels import SAMPLES_PER_PART, label_points
 
-__all__ = ["SAMPLES_PER_PART", "label_points", "prepared_point_parts", "procedural_point_parts", "read_obj_parts",
-           "source_obj"]
+__all__ = [
+    "SAMPLES_PER_PART",
+    "label_points",
+    "prepared_point_parts",
+    "procedural_point_parts",
+    "read_obj_parts",
+    "source_obj",
+]
 
 
 def read_obj_parts(path: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -62,8 +68,9 @@ def source_obj(prepare_dir: Path, rec: dict) -> Path | None:
     raise ModelError(prepare_dir, f"procedural source {rel} not found (needed for per-point part labels)")
 
 
-def procedural_point_parts(obj: Path, points: np.ndarray, center, scale: float,
-                           rng: np.random.Generator) -> tuple[np.ndarray, list[str]]:
+def procedural_point_parts(
+    obj: Path, points: np.ndarray, center, scale: float, rng: np.random.Generator
+) -> tuple[np.ndarray, list[str]]:
     """Family ids of ``points`` (normalized frame) from a procedural OBJ's part groups."""
     parts = [(part_family(label), v, f) for label, v, f in read_obj_parts(obj)]
     return label_points(points, parts, center, scale, rng)

@@ -36,9 +36,26 @@ import numpy as np
 from pipeline.core.atomic import dumps_json, read_json, write_json
 from pipeline.core.errors import ModelError
 from pipeline.core.hashing import file_sha256
-from pipeline.core.schema import (CAMERAS_FILE, CAMERAS_MEMBER, FRAGMENT, MANIFEST, META_MEMBER, POINT_PARTS_MEMBER,
-                                  POINTS_MEMBER, RECORD, SAMPLES_FILE, SHARD_RE, SKETCH_GLOB, SPLITS, STROKES_FILE,
-                                  STROKES_MEMBER, SampleMeta, present_parts, sample_key, shard_name)
+from pipeline.core.schema import (
+    CAMERAS_FILE,
+    CAMERAS_MEMBER,
+    FRAGMENT,
+    MANIFEST,
+    META_MEMBER,
+    POINT_PARTS_MEMBER,
+    POINTS_MEMBER,
+    RECORD,
+    SAMPLES_FILE,
+    SHARD_RE,
+    SKETCH_GLOB,
+    SPLITS,
+    STROKES_FILE,
+    STROKES_MEMBER,
+    SampleMeta,
+    present_parts,
+    sample_key,
+    shard_name,
+)
 from pipeline.core.seeding import rng_for
 from pipeline.core.splits import DEFAULT_FRACTIONS, split_of
 from pipeline.dataset.point_parts import prepared_point_parts, procedural_point_parts, source_obj
@@ -90,13 +107,17 @@ class ShardInfo:
     keys: tuple[str, ...]
 
     def to_json(self) -> dict:
-        return {"name": self.name, "samples": self.samples, "bytes": self.bytes,
-                "sha256": self.sha256, "keys": list(self.keys)}
-
-
+        return {
+            "name": self.name,
+            "samples": self.samples,
+            "bytes": self.bytes,
+            "sha256": self.sha256,
+            "keys": list(self.keys),
+        }
 
 
 # ---------------------------------------------------------------- sample assembly
+
 
 def _read_bytes(path: Path) -> bytes:
     try:
@@ -172,8 +193,9 @@ def assemble_sample(
     _record(dirs.render_dir)
     _record(dirs.augment_dir)
     key = sample_key(category, dirs.model_id)
-    points, idx = _load_points(dirs.prepare_dir / SAMPLES_FILE, settings.points,
-                               (seed, "shards", category, dirs.model_id))
+    points, idx = _load_points(
+        dirs.prepare_dir / SAMPLES_FILE, settings.points, (seed, "shards", category, dirs.model_id)
+    )
     members: dict[str, bytes] = {POINTS_MEMBER: _npy_bytes(points)}
     sketches = sorted(p for p in Path(dirs.augment_dir).glob(SKETCH_GLOB))
     if not sketches:
@@ -192,8 +214,9 @@ def assemble_sample(
     elif obj is not None:
         norm = prep.get("normalization") or {}
         try:
-            ids, point_names = procedural_point_parts(obj, points, norm["center"], norm["scale"],
-                                                      rng_for(seed, "point-parts", category, dirs.model_id))
+            ids, point_names = procedural_point_parts(
+                obj, points, norm["center"], norm["scale"], rng_for(seed, "point-parts", category, dirs.model_id)
+            )
         except (KeyError, ValueError) as e:
             raise ModelError(obj, f"cannot label surface points by part: {e}") from e
         members[POINT_PARTS_MEMBER] = _npy_bytes(ids)
@@ -220,6 +243,7 @@ def assemble_sample(
 
 
 # ---------------------------------------------------------------- tar writing / reading
+
 
 def _tarinfo(name: str, size: int) -> tarfile.TarInfo:
     info = tarfile.TarInfo(name)
@@ -257,8 +281,9 @@ class TarShard:
         self._file.close()
 
 
-def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
-                       settings: ShardSettings) -> list[ShardInfo]:
+def write_split_shards(
+    samples: Iterable[Sample], split: str, out_dir: Path, settings: ShardSettings
+) -> list[ShardInfo]:
     """Write ``<split>-NNNNN.tar`` files into ``out_dir`` from samples in key order.
 
     A shard closes when it holds max_samples_per_shard samples or the next sample would push it
@@ -270,8 +295,16 @@ def write_split_shards(samples: Iterable[Sample], split: str, out_dir: Path,
     def close() -> None:
         assert writer is not None
         writer.close()
-        infos.append(ShardInfo(writer.path.name, split, len(writer.keys), writer.path.stat().st_size,
-                               file_sha256(writer.path), tuple(writer.keys)))
+        infos.append(
+            ShardInfo(
+                writer.path.name,
+                split,
+                len(writer.keys),
+                writer.path.stat().st_size,
+                file_sha256(writer.path),
+                tuple(writer.keys),
+            )
+        )
 
     for sample in samples:
         if writer is not None and (
@@ -336,8 +369,10 @@ class NotOurFiles(RuntimeError):
         self.problems = problems
         where = Path(category_dir)
         shown = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
-        super().__init__(f"{where} holds {shown}; not written by this build (not in its "
-                         f"{FRAGMENT} or {MANIFEST}), so it is left alone: move it away or choose another --dataset-dir")
+        super().__init__(
+            f"{where} holds {shown}; not written by this build (not in its "
+            f"{FRAGMENT} or {MANIFEST}), so it is left alone: move it away or choose another --dataset-dir"
+        )
 
 
 class CategoryBusy(RuntimeError):
@@ -428,8 +463,10 @@ def category_lock(category_dir: Path, wait_s: float = LOCK_WAIT_S) -> Iterator[N
         except BlockingIOError:
             os.close(fd)
             if time.monotonic() >= deadline:
-                raise CategoryBusy(f"another build is writing {category_dir} ({_holder(path)}) and did not finish "
-                                   f"within {wait_s:g} s; let it finish, or use another --dataset-dir") from None
+                raise CategoryBusy(
+                    f"another build is writing {category_dir} ({_holder(path)}) and did not finish "
+                    f"within {wait_s:g} s; let it finish, or use another --dataset-dir"
+                ) from None
             time.sleep(0.2)
             continue
         # A holder unlinks the file before it lets go: a lock won on the unlinked file guards nothing.
@@ -459,6 +496,7 @@ def _remove_stale_staging(category_dir: Path) -> None:
 
 
 # ---------------------------------------------------------------- a category's shard set
+
 
 @dataclasses.dataclass
 class ShardSet:
@@ -496,12 +534,19 @@ def write_category_shards(
         problems = shard_conflicts(category_dir)
         if problems:
             raise NotOurFiles(category_dir, problems)
-        return _write_locked(category, models, category_dir, settings, seed, settings_hash, portable,
-                             before_cleanup)
+        return _write_locked(category, models, category_dir, settings, seed, settings_hash, portable, before_cleanup)
 
 
-def _write_locked(category: str, models: list[ModelDirs], category_dir: Path, settings: ShardSettings,
-                  seed: int, settings_hash: str, portable, before_cleanup) -> ShardSet:
+def _write_locked(
+    category: str,
+    models: list[ModelDirs],
+    category_dir: Path,
+    settings: ShardSettings,
+    seed: int,
+    settings_hash: str,
+    portable,
+    before_cleanup,
+) -> ShardSet:
     failed: list[dict] = []
     by_split: dict[str, list[ModelDirs]] = {s: [] for s in SPLITS}
     for m in sorted(models, key=lambda m: sample_key(category, m.model_id)):
@@ -512,8 +557,7 @@ def _write_locked(category: str, models: list[ModelDirs], category_dir: Path, se
             try:
                 yield assemble_sample(category, m, settings, seed, settings_hash, portable)
             except ModelError as e:
-                failed.append({"model_id": m.model_id, "stage": "shards",
-                               "path": portable(e.path), "reason": e.reason})
+                failed.append({"model_id": m.model_id, "stage": "shards", "path": portable(e.path), "reason": e.reason})
 
     owned = owned_shards(category_dir)
     staging = Path(tempfile.mkdtemp(prefix=f".staging-{socket.gethostname()}-{os.getpid()}-", dir=category_dir))
@@ -526,8 +570,12 @@ def _write_locked(category: str, models: list[ModelDirs], category_dir: Path, se
         for infos in shards.values():
             for info in infos:
                 dst = category_dir / info.name
-                if (dst.is_file() and not dst.is_symlink() and dst.stat().st_size == info.bytes
-                        and file_sha256(dst) == info.sha256):
+                if (
+                    dst.is_file()
+                    and not dst.is_symlink()
+                    and dst.stat().st_size == info.bytes
+                    and file_sha256(dst) == info.sha256
+                ):
                     continue  # same bytes: keep the old file and its mtime
                 if _is_empty_dir(dst):
                     dst.rmdir()  # a folder took the shard's name; it holds nothing

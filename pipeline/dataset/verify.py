@@ -12,10 +12,18 @@ import json
 import tarfile
 from pathlib import Path
 
-from pipeline.core.names import UnsafePath, inside, is_safe_component
-from pipeline.core.schema import FRAGMENT, MANIFEST, META_MEMBER, REQUIRED_MEMBERS, SHARD_RE, SPLITS, sketch_view_variant
-from pipeline.dataset.manifest import content_checksum, read_fragment
 from pipeline.core.hashing import file_sha256
+from pipeline.core.names import UnsafePath, inside, is_safe_component
+from pipeline.core.schema import (
+    FRAGMENT,
+    MANIFEST,
+    META_MEMBER,
+    REQUIRED_MEMBERS,
+    SHARD_RE,
+    SPLITS,
+    sketch_view_variant,
+)
+from pipeline.dataset.manifest import content_checksum, read_fragment
 from pipeline.dataset.shards import iter_shard, list_shards
 
 
@@ -29,7 +37,9 @@ def _check_sample(shard: str, key: str, members: dict[str, bytes], split: str) -
         except ValueError:
             return problems + [f"{shard}: sample {key} has unreadable {META_MEMBER}"]
         if meta.get("key") != key or meta.get("split") != split:
-            problems.append(f"{shard}: sample {key} {META_MEMBER} names key {meta.get('key')!r} split {meta.get('split')!r}")
+            problems.append(
+                f"{shard}: sample {key} {META_MEMBER} names key {meta.get('key')!r} split {meta.get('split')!r}"
+            )
     return problems
 
 
@@ -79,8 +89,10 @@ def verify_dataset(dataset_dir: Path) -> list[str]:
             problems.append(f"{category}/{FRAGMENT}: differs from the manifest entry")
         if not sum(entry["splits"][split]["samples"] for split in SPLITS):
             # consistent, yet useless: a build that built nothing fails, and so does its check
-            problems.append(f"{category}: no samples ({entry.get('models_failed', 0)} of "
-                            f"{entry.get('models_requested', 0)} models failed)")
+            problems.append(
+                f"{category}: no samples ({entry.get('models_failed', 0)} of "
+                f"{entry.get('models_requested', 0)} models failed)"
+            )
         listed: set[str] = set()
         for split in SPLITS:
             for info in entry["splits"][split]["shards"]:

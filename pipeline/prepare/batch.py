@@ -22,37 +22,37 @@ import trimesh
 
 from pipeline.core.atomic import write_npy
 from pipeline.core.errors import ModelError
+from pipeline.core.hashing import file_sha256
 from pipeline.core.model_loop import ModelJob, run_models
+from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
 from pipeline.core.records import ModelRef, Progress, write_ok
 from pipeline.core.schema import LINE_MESH_FILE, MESH_FILE, SAMPLE_PARTS_FILE, SAMPLES_FILE, sidecar_path
+from pipeline.core.seeding import derive_seed, rng_for
 from pipeline.prepare.line_mesh import line_mesh
 from pipeline.prepare.mesh_checks import check_input
 from pipeline.prepare.part_labels import segmentation_labels
-from pipeline.sources.segmentation import PartLabelSettings
-from pipeline.core.hashing import file_sha256
-from pipeline.sources.mesh_io import load_mesh, write_ply
-from pipeline.core.normalize import apply_transform, transform_box, unit_sphere_transform
-from pipeline.prepare.settings import PrepareSettings
-from pipeline.prepare.sampling import sample_surface
-from pipeline.core.seeding import derive_seed, rng_for
 from pipeline.prepare.refine import refine_envelope
+from pipeline.prepare.sampling import sample_surface
+from pipeline.prepare.settings import PrepareSettings
 from pipeline.prepare.watertight import make_watertight
+from pipeline.sources.mesh_io import load_mesh, write_ply
+from pipeline.sources.segmentation import PartLabelSettings
 
 __all__ = ["PrepareSettings", "prepare_model", "prepare_batch", "repair_mesh"]
 
 METHOD = {
     "watertight": "Manifold (Huang et al. 2018) via point_cloud_utils.make_mesh_watertight",
     "pull": "envelope vertices moved pull_to_source of the way to their closest source point, folds"
-            " and hole caps left in place (pipeline.prepare.watertight.pull_to_source)",
+    " and hole caps left in place (pipeline.prepare.watertight.pull_to_source)",
     "refinement_fallback": "a refinement after the envelope (pull, decimation) whose output fails the"
-                           " closed-solid check is undone, its input kept; the path each took is in"
-                           " refinements (pipeline.prepare.refine)",
+    " closed-solid check is undone, its input kept; the path each took is in"
+    " refinements (pipeline.prepare.refine)",
     "decimation": "pymeshlab meshing_decimation_quadric_edge_collapse (preservetopology, preservenormal)",
     "normalization": "bbox centre to origin, farthest vertex at radius 1",
     "sampling": "trimesh.sample.sample_surface (area-uniform) + face normals",
     "line_mesh": "source mesh under the same normalization, vertices merged, degenerate and duplicate"
-                 " faces removed, winding made consistent and outward per body, long slivers split, decimated"
-                 " keeping sharp edges above max_line_faces (pipeline.prepare.line_mesh)",
+    " faces removed, winding made consistent and outward per body, long slivers split, decimated"
+    " keeping sharp edges above max_line_faces (pipeline.prepare.line_mesh)",
 }
 
 
@@ -139,8 +139,9 @@ def _sidecar_fields(side: dict, center: np.ndarray, scale: float) -> dict:
     }
 
 
-def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
-                  parts: PartLabelSettings | None = None) -> dict:
+def prepare_model(
+    ref: ModelRef, out_dir: Path, settings: PrepareSettings, parts: PartLabelSettings | None = None
+) -> dict:
     """Prepare one model into ``out_dir`` (its files and record.json); returns the record.
 
     Raises ModelError for bad input or a repair that fails verification (no record written).
@@ -148,8 +149,9 @@ def prepare_model(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
     return write_ok(out_dir, **prepare_files(ref, out_dir, settings, parts))
 
 
-def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
-                  parts: PartLabelSettings | None = None) -> dict:
+def prepare_files(
+    ref: ModelRef, out_dir: Path, settings: PrepareSettings, parts: PartLabelSettings | None = None
+) -> dict:
     """Write one model's mesh.ply, lines.ply and samples.npy into ``out_dir``; returns its record
     fields (the caller writes record.json). Raises ModelError for bad input.
 
@@ -172,8 +174,9 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
     # export in mm read as m) is repaired at unit size, one far from the origin centred, and the
     # pre-transform folded into the record.
     c0, k0 = pre_scale(vertices, faces)
-    mesh, repair = repair_mesh(path, vertices if c0 is None else (vertices - c0) / k0, faces, settings,
-                               wt_seed, timings)
+    mesh, repair = repair_mesh(
+        path, vertices if c0 is None else (vertices - c0) / k0, faces, settings, wt_seed, timings
+    )
 
     t = time.perf_counter()
     c1, s1 = unit_sphere_transform(mesh.vertices)
@@ -195,8 +198,17 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
     labelled = None
     if side is None and parts is not None:
         t = time.perf_counter()
-        labelled = segmentation_labels(path, vertices, faces, ref.model_id, parts, samples, center, scale,
-                                       rng_for(settings.seed, "prepare-parts", ref.category, ref.model_id))
+        labelled = segmentation_labels(
+            path,
+            vertices,
+            faces,
+            ref.model_id,
+            parts,
+            samples,
+            center,
+            scale,
+            rng_for(settings.seed, "prepare-parts", ref.category, ref.model_id),
+        )
         timings["part_labels"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -217,8 +229,13 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
         "vertices": {"input": int(len(vertices)), "output": int(len(final.vertices))},
         "bodies": int(final.body_count),
         "line_mesh": {"faces": int(len(lines.faces)), "vertices": int(len(lines.vertices))},
-        "method": {**METHOD, "resolution": repair["resolution"], "attempts": repair["attempts"],
-                   "rejected_attempts": repair["rejected"], "max_faces": settings.max_faces},
+        "method": {
+            **METHOD,
+            "resolution": repair["resolution"],
+            "attempts": repair["attempts"],
+            "rejected_attempts": repair["rejected"],
+            "max_faces": settings.max_faces,
+        },
         "refinements": repair["refinements"],
         "n_samples": int(len(samples)),
         "files": {"mesh": MESH_FILE, "line_mesh": LINE_MESH_FILE, "samples": SAMPLES_FILE},
@@ -234,12 +251,18 @@ def prepare_files(ref: ModelRef, out_dir: Path, settings: PrepareSettings,
 
 
 def prepare_batch(
-    refs: list[ModelRef], stage_dir: Path, settings: PrepareSettings, progress: Progress = None,
+    refs: list[ModelRef],
+    stage_dir: Path,
+    settings: PrepareSettings,
+    progress: Progress = None,
     parts: PartLabelSettings | None = None,
 ) -> list[dict]:
     """Prepare every model not yet done (pipeline.core.model_loop: a bad model is recorded as
     failed, a storage or environment error fails the batch); ``parts`` as in ``prepare_files``."""
-    jobs = [ModelJob(r.category, r.model_id, r.path, r,
-                     failed_fields={"source": {"kind": r.source, "path": str(r.path)}}) for r in refs]
-    return run_models("prepare", stage_dir, jobs, lambda job, folder: prepare_files(job.item, folder, settings, parts),
-                      progress)
+    jobs = [
+        ModelJob(r.category, r.model_id, r.path, r, failed_fields={"source": {"kind": r.source, "path": str(r.path)}})
+        for r in refs
+    ]
+    return run_models(
+        "prepare", stage_dir, jobs, lambda job, folder: prepare_files(job.item, folder, settings, parts), progress
+    )

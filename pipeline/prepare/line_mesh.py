@@ -27,8 +27,9 @@ import trimesh
 from pipeline.core.normalize import apply_transform
 
 
-def line_mesh(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale: float,
-              max_faces: int) -> trimesh.Trimesh:
+def line_mesh(
+    vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, scale: float, max_faces: int
+) -> trimesh.Trimesh:
     """The cleaned source surface in the normalized frame (``(v - center) / scale``)."""
     v = apply_transform(vertices, center, scale)
     # process=True merges vertices that coincide (to trimesh's 1e-8 grid) and drops NaN faces.
@@ -90,8 +91,12 @@ def _decimate_keeping_edges(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Tr
     # boundaries kept and planar regions simplified first: the quadric then spends its error on
     # flat areas, and sharp edges (high quadric cost) survive.
     ms.meshing_decimation_quadric_edge_collapse(
-        targetfacenum=int(max_faces), preserveboundary=True, boundaryweight=2.0,
-        preservenormal=True, planarquadric=True, qualitythr=0.3,
+        targetfacenum=int(max_faces),
+        preserveboundary=True,
+        boundaryweight=2.0,
+        preservenormal=True,
+        planarquadric=True,
+        qualitythr=0.3,
     )
     ms.meshing_remove_unreferenced_vertices()
     out = ms.current_mesh()

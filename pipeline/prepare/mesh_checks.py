@@ -34,9 +34,7 @@ def check_input(
     used = vertices[np.unique(faces)]
     extent = float(np.abs(used).max())
     if extent > max_abs_coordinate:
-        raise ModelError(
-            path, f"huge mesh: coordinate {extent:.3g} beyond max_abs_coordinate {max_abs_coordinate:g}"
-        )
+        raise ModelError(path, f"huge mesh: coordinate {extent:.3g} beyond max_abs_coordinate {max_abs_coordinate:g}")
     diag = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
     tri = vertices[faces]
     area = 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())

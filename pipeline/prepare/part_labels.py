@@ -30,7 +30,11 @@ MIN_SAMPLES_PER_PART = 256
 
 
 def label_points(
-    points: np.ndarray, parts: list[tuple[str, np.ndarray, np.ndarray]], center, scale: float, rng: np.random.Generator,
+    points: np.ndarray,
+    parts: list[tuple[str, np.ndarray, np.ndarray]],
+    center,
+    scale: float,
+    rng: np.random.Generator,
     per_part: int = SAMPLES_PER_PART,
 ) -> tuple[np.ndarray, list[str]]:
     """uint8 ``(N,)`` name index per point (xyz in the normalized frame) and the sorted names.
@@ -53,9 +57,17 @@ def label_points(
     return np.concatenate(ids)[nearest], names
 
 
-def segmentation_labels(path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str,
-                        settings: PartLabelSettings, samples: np.ndarray, center, scale: float,
-                        rng: np.random.Generator) -> tuple[dict, np.ndarray] | None:
+def segmentation_labels(
+    path: Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    model_id: str,
+    settings: PartLabelSettings,
+    samples: np.ndarray,
+    center,
+    scale: float,
+    rng: np.random.Generator,
+) -> tuple[dict, np.ndarray] | None:
     """A file source model's record fields (``parts``, ``part_labels``) and the uint8 label of
     each of its ``samples``; None when it has no segmentation or the map drops every part.
 

@@ -67,8 +67,12 @@ def _timed(timings: dict, key: str, fn, *args):
 
 
 def refine_envelope(
-    env_vertices: np.ndarray, env_faces: np.ndarray, src_vertices: np.ndarray, src_faces: np.ndarray,
-    settings: PrepareSettings, timings: dict | None = None,
+    env_vertices: np.ndarray,
+    env_faces: np.ndarray,
+    src_vertices: np.ndarray,
+    src_faces: np.ndarray,
+    settings: PrepareSettings,
+    timings: dict | None = None,
 ) -> Refined:
     """Pull, decimate and verify an envelope, undoing a step whose output fails the check."""
     timings = {} if timings is None else timings
@@ -87,13 +91,27 @@ def refine_envelope(
     return Refined(None if problems else stage.mesh, problems, paths)
 
 
-def _pull(envelope: Stage, src_vertices: np.ndarray, src_faces: np.ndarray, settings: PrepareSettings,
-          timings: dict, paths: dict) -> Stage:
+def _pull(
+    envelope: Stage,
+    src_vertices: np.ndarray,
+    src_faces: np.ndarray,
+    settings: PrepareSettings,
+    timings: dict,
+    paths: dict,
+) -> Stage:
     if settings.pull_to_source <= 0.0:
         paths["pull_to_source"] = OFF
         return envelope
-    pulled = _timed(timings, "pull", pull_to_source, envelope.vertices, envelope.faces, src_vertices, src_faces,
-                    settings.pull_to_source)
+    pulled = _timed(
+        timings,
+        "pull",
+        pull_to_source,
+        envelope.vertices,
+        envelope.faces,
+        src_vertices,
+        src_faces,
+        settings.pull_to_source,
+    )
     out = _timed(timings, "verify", check_solid, pulled, envelope.faces, settings)
     if not out.problems:
         paths["pull_to_source"] = APPLIED

@@ -45,5 +45,9 @@ class PrepareSettings:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if not 0.0 <= self.pull_to_source < 1.0:
             raise ValueError(f"pull_to_source must be in [0, 1), got {self.pull_to_source!r}")
-        if not self.max_abs_coordinate > 0 or not 0.0 <= self.min_component_fraction < 1.0 or self.fallback_attempts < 0:
+        if (
+            not self.max_abs_coordinate > 0
+            or not 0.0 <= self.min_component_fraction < 1.0
+            or self.fallback_attempts < 0
+        ):
             raise ValueError("max_abs_coordinate must be > 0, min_component_fraction in [0, 1), fallback_attempts >= 0")

@@ -46,7 +46,10 @@ FOLD_ROUNDS = 8
 
 
 def pull_to_source(
-    env_vertices: np.ndarray, env_faces: np.ndarray, src_vertices: np.ndarray, src_faces: np.ndarray,
+    env_vertices: np.ndarray,
+    env_faces: np.ndarray,
+    src_vertices: np.ndarray,
+    src_faces: np.ndarray,
     fraction: float,
 ) -> np.ndarray:
     """Envelope vertices moved ``fraction`` of the way to their closest point on the source.
@@ -120,8 +123,9 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[n
     return np.asarray(out.vertex_matrix(), dtype=np.float64), np.asarray(out.face_matrix(), dtype=np.int64)
 
 
-def clean_solid(vertices: np.ndarray, faces: np.ndarray, min_component_fraction: float
-                ) -> tuple[trimesh.Trimesh, SurfaceFacts]:
+def clean_solid(
+    vertices: np.ndarray, faces: np.ndarray, min_component_fraction: float
+) -> tuple[trimesh.Trimesh, SurfaceFacts]:
     """Merged-vertex mesh with specks dropped and faces oriented outward (positive volume), and
     its :func:`surface_facts` (what the verification asks).
 

@@ -36,8 +36,9 @@ _BUILDERS: dict[str, Callable[[np.random.Generator, bool], list[Part]]] = {
 DETACHABLE = ("airplane", "bottle", "car")
 
 
-def generate(category: str, index: int, seed: int = 0, defect_fraction: float = 0.25,
-             detached_fraction: float = 0.3) -> ProceduralModel:
+def generate(
+    category: str, index: int, seed: int = 0, defect_fraction: float = 0.25, detached_fraction: float = 0.3
+) -> ProceduralModel:
     """Model ``index`` of ``category``: same (seed, category, index) gives identical arrays.
 
     ``detached_fraction``: probability that a model of a DETACHABLE category has detached parts.

@@ -11,7 +11,9 @@ from pipeline.shapes.model import Part, make_part, mirrored_pair
 GAP = 0.035  # detached engines: clearance between pylon and nacelle, in fuselage lengths
 
 
-def _fuselage(length: float, radius: float, nose: float, tail: float, upsweep: float, k: int = 24, n: int = 28) -> pr.Mesh:
+def _fuselage(
+    length: float, radius: float, nose: float, tail: float, upsweep: float, k: int = 24, n: int = 28
+) -> pr.Mesh:
     t = np.linspace(0.0, 1.0, n)
     r = np.ones(n)
     front = t < nose
@@ -26,8 +28,17 @@ def _fuselage(length: float, radius: float, nose: float, tail: float, upsweep: f
     return pr.loft(rings)
 
 
-def _wing(root_le: np.ndarray, span: float, root_chord: float, taper: float, sweep_deg: float,
-          dihedral_deg: float, thickness: float, n: int = 8, k: int = 20) -> pr.Mesh:
+def _wing(
+    root_le: np.ndarray,
+    span: float,
+    root_chord: float,
+    taper: float,
+    sweep_deg: float,
+    dihedral_deg: float,
+    thickness: float,
+    n: int = 8,
+    k: int = 20,
+) -> pr.Mesh:
     """Right half-wing along +x from ``root_le`` (the root's leading edge), chord along +z."""
     foil = pr.airfoil(1.0, thickness, k)
     rings = []
@@ -39,8 +50,16 @@ def _wing(root_le: np.ndarray, span: float, root_chord: float, taper: float, swe
     return pr.loft(rings)
 
 
-def _fin(root_le: np.ndarray, height: float, root_chord: float, taper: float, sweep_deg: float,
-         thickness: float, n: int = 6, k: int = 20) -> pr.Mesh:
+def _fin(
+    root_le: np.ndarray,
+    height: float,
+    root_chord: float,
+    taper: float,
+    sweep_deg: float,
+    thickness: float,
+    n: int = 6,
+    k: int = 20,
+) -> pr.Mesh:
     """Vertical tail in the x = 0 plane, rising along +y."""
     foil = pr.airfoil(1.0, thickness, k)[:, ::-1]  # (thickness -> x, chord -> z)
     rings = []
@@ -61,7 +80,9 @@ def _nacelle(center: np.ndarray, length: float, radius: float, k: int = 20) -> p
 def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     L = rng.uniform(1.3, 1.7)
     R = L * rng.uniform(0.045, 0.075)
-    parts = [make_part("fuselage", _fuselage(L, R, rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.35), rng.uniform(0.2, 0.8)))]
+    parts = [
+        make_part("fuselage", _fuselage(L, R, rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.35), rng.uniform(0.2, 0.8)))
+    ]
 
     # Wings: low or high mounted, swept, tapered, with dihedral.
     span = L * rng.uniform(0.4, 0.62)
@@ -87,8 +108,12 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
         hs_le = fin_le + np.array([0.0, fin_h * 0.95, fin_h * np.tan(np.radians(fin_sweep))])
     else:
         hs_le = np.array([0.0, R * 0.3, L / 2 - hs_chord * 1.1 - 0.02 * L])
-    parts += mirrored_pair("horizontal_tail", _wing(hs_le, hs_span, hs_chord, rng.uniform(0.4, 0.7),
-                                                    rng.uniform(10.0, 35.0), rng.uniform(0.0, 6.0), 0.09, n=5))
+    parts += mirrored_pair(
+        "horizontal_tail",
+        _wing(
+            hs_le, hs_span, hs_chord, rng.uniform(0.4, 0.7), rng.uniform(10.0, 35.0), rng.uniform(0.0, 6.0), 0.09, n=5
+        ),
+    )
 
     # Engines under the wings: 0, 2 or 4.
     n_eng = int(rng.choice([0, 2, 4], p=[0.25, 0.55, 0.2]))
@@ -104,8 +129,13 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
         if detached:
             # pylon hanging from the wing, the nacelle a gap below it (separately modelled parts)
             drop = eng_r * 0.8
-            pylon = pr.superquadric((eng_r * 0.12, drop / 2 + eng_r * 0.1, eng_len * 0.3),
-                                    (x, y_wing - drop / 2, le_z + eng_len * 0.05), 6.0, k=12, n=6)
+            pylon = pr.superquadric(
+                (eng_r * 0.12, drop / 2 + eng_r * 0.1, eng_len * 0.3),
+                (x, y_wing - drop / 2, le_z + eng_len * 0.05),
+                6.0,
+                k=12,
+                n=6,
+            )
             parts += mirrored_pair(f"pylon{j}", pylon)
             y = y_wing - drop - GAP * L - eng_r
         else:

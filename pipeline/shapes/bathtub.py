@@ -50,7 +50,13 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
         a = np.linspace(0, np.pi * 0.85, 14)
         rise = rng.uniform(0.08, 0.18)
         bend = rng.uniform(0.05, 0.1)
-        path = np.stack([np.zeros_like(a), base + H - 0.02 + rise * np.sin(np.clip(a * 1.6, 0, np.pi / 2)) + bend * np.sin(a) * 0.5,
-                         Wz - wall * 0.5 - bend * (1 - np.cos(a))], axis=1)
+        path = np.stack(
+            [
+                np.zeros_like(a),
+                base + H - 0.02 + rise * np.sin(np.clip(a * 1.6, 0, np.pi / 2)) + bend * np.sin(a) * 0.5,
+                Wz - wall * 0.5 - bend * (1 - np.cos(a)),
+            ],
+            axis=1,
+        )
         parts.append(make_part("faucet", pr.tube(path, r, k=12)))
     return parts

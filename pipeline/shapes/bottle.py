@@ -25,7 +25,9 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     # Body: slight bulge or waist, rounded bottom edge.
     bulge = rng.uniform(-0.08, 0.1)
     heel = R * rng.uniform(0.05, 0.2)
-    ys = np.concatenate([[0.0], heel * (1 - np.cos(np.linspace(0.2, np.pi / 2, 4))), np.linspace(heel * 1.5, body_h, 8)])
+    ys = np.concatenate(
+        [[0.0], heel * (1 - np.cos(np.linspace(0.2, np.pi / 2, 4))), np.linspace(heel * 1.5, body_h, 8)]
+    )
     rs = [R * 0.6]
     for y in ys[1:]:
         if y <= heel:

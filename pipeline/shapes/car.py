@@ -10,8 +10,17 @@ from pipeline.shapes.model import Part, make_part, mirrored_pair
 GAP = 0.045  # detached wheels: clearance to the body, in car lengths
 
 
-def _body(length: float, width: float, bottom: float, height: float, hood_drop: float, tail_drop: float,
-          exponent: float, k: int = 32, n: int = 22) -> pr.Mesh:
+def _body(
+    length: float,
+    width: float,
+    bottom: float,
+    height: float,
+    hood_drop: float,
+    tail_drop: float,
+    exponent: float,
+    k: int = 32,
+    n: int = 22,
+) -> pr.Mesh:
     t = np.linspace(0.0, 1.0, n)
     # Top line: lower at the nose (hood slope) and slightly lower at the tail; rounded ends.
     top = height * (1 - hood_drop * np.clip(1 - t / 0.3, 0, 1) ** 2 - tail_drop * np.clip((t - 0.8) / 0.2, 0, 1) ** 2)
@@ -25,8 +34,17 @@ def _body(length: float, width: float, bottom: float, height: float, hood_drop: 
     return pr.loft(rings)
 
 
-def _cabin(z0: float, z1: float, base_y: float, height: float, width: float, rake_front: float, rake_back: float,
-           k: int = 32, n: int = 6) -> pr.Mesh:
+def _cabin(
+    z0: float,
+    z1: float,
+    base_y: float,
+    height: float,
+    width: float,
+    rake_front: float,
+    rake_back: float,
+    k: int = 32,
+    n: int = 6,
+) -> pr.Mesh:
     """Greenhouse: rounded-rectangle rings in xz stacked along y, shrinking toward the roof."""
     rings = []
     for f in np.linspace(0.0, 1.0, n):
@@ -69,7 +87,9 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     if rng.random() < 0.3:  # rear wing on two struts
         sz = L / 2 - L * 0.06
         sy = bottom + body_h + L * 0.05
-        parts.append(make_part("spoiler", pr.superquadric((W * 0.45, L * 0.008, L * 0.04), (0, sy, sz), 8.0, k=24, n=8)))
+        parts.append(
+            make_part("spoiler", pr.superquadric((W * 0.45, L * 0.008, L * 0.04), (0, sy, sz), 8.0, k=24, n=8))
+        )
         strut = pr.superquadric((L * 0.008, L * 0.03, L * 0.015), (W * 0.3, sy - L * 0.03, sz), 6.0, k=12, n=6)
         parts += mirrored_pair("spoiler_strut", strut)
     return parts

@@ -34,14 +34,18 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
 
     neck_len = rng.uniform(0.75, 1.0)
     neck_w = rng.uniform(0.045, 0.065)
-    neck = pr.superquadric((neck_w, neck_len / 2, depth * 0.3), (0, top - 0.05 + neck_len / 2, -depth * 0.05), 6.0, k=24, n=24)
+    neck = pr.superquadric(
+        (neck_w, neck_len / 2, depth * 0.3), (0, top - 0.05 + neck_len / 2, -depth * 0.05), 6.0, k=24, n=24
+    )
     parts.append(make_part("neck", neck))
 
     head_len = rng.uniform(0.14, 0.24)
     head_w = neck_w * rng.uniform(1.3, 1.9)
     tilt = rng.uniform(0.0, 15.0)
     head_y = top - 0.05 + neck_len
-    head = pr.superquadric((head_w, head_len / 2, depth * 0.12), (0, head_len / 2 - 0.01, 0), rng.uniform(4.0, 10.0), k=16, n=8)
+    head = pr.superquadric(
+        (head_w, head_len / 2, depth * 0.12), (0, head_len / 2 - 0.01, 0), rng.uniform(4.0, 10.0), k=16, n=8
+    )
     head = pr.transform(head, pr.rot_x(-tilt), (0, head_y, -depth * 0.05))
     parts.append(make_part("head", head))
 

@@ -15,15 +15,32 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     rec_len = scale * (rng.uniform(0.45, 0.7) if rifle else rng.uniform(0.7, 0.9))
     rec_h = scale * rng.uniform(0.09, 0.14) * (1.0 if rifle else 1.1)
     rec_w = rec_h * rng.uniform(0.3, 0.45)
-    parts = [make_part("receiver", pr.superquadric((rec_w, rec_h / 2, rec_len / 2), (0, 0, 0), rng.uniform(5.0, 10.0), k=24, n=10))]
+    parts = [
+        make_part(
+            "receiver", pr.superquadric((rec_w, rec_h / 2, rec_len / 2), (0, 0, 0), rng.uniform(5.0, 10.0), k=24, n=10)
+        )
+    ]
 
     barrel_len = scale * (rng.uniform(0.5, 0.9) if rifle else rng.uniform(0.03, 0.1))
     barrel_r = rec_h * rng.uniform(0.12, 0.22)
     by = rec_h * rng.uniform(0.05, 0.25)
-    parts.append(make_part("barrel", pr.cylinder(barrel_r, barrel_len + 0.04, k=24, center=(0, by, -rec_len / 2 - barrel_len / 2 + 0.02), axis="z")))
+    parts.append(
+        make_part(
+            "barrel",
+            pr.cylinder(
+                barrel_r, barrel_len + 0.04, k=24, center=(0, by, -rec_len / 2 - barrel_len / 2 + 0.02), axis="z"
+            ),
+        )
+    )
     if rifle and rng.random() < 0.6:  # handguard around the rear part of the barrel
         hg_len = barrel_len * rng.uniform(0.35, 0.6)
-        hg = pr.superquadric((rec_w * 0.85, rec_h * 0.35, hg_len / 2), (0, by - rec_h * 0.05, -rec_len / 2 - hg_len / 2 + 0.02), 4.0, k=24, n=8)
+        hg = pr.superquadric(
+            (rec_w * 0.85, rec_h * 0.35, hg_len / 2),
+            (0, by - rec_h * 0.05, -rec_len / 2 - hg_len / 2 + 0.02),
+            4.0,
+            k=24,
+            n=8,
+        )
         parts.append(make_part("handguard", hg))
 
     # Grip: rounded box, tilted back, below the rear of the receiver.
@@ -44,7 +61,9 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
         mag_len = scale * rng.uniform(0.15, 0.3)
         curve = rng.uniform(-25.0, 5.0)
         mag = pr.superquadric((rec_w * 0.7, mag_len / 2, rec_h * 0.3), (0, -mag_len / 2, 0), 8.0, k=16, n=10)
-        parts.append(make_part("magazine", pr.transform(mag, pr.rot_x(curve), (0, -rec_h * 0.3, gz - gr * 1.6 - rec_h * 0.2))))
+        parts.append(
+            make_part("magazine", pr.transform(mag, pr.rot_x(curve), (0, -rec_h * 0.3, gz - gr * 1.6 - rec_h * 0.2)))
+        )
 
     if rifle and rng.random() < 0.85:  # stock: lofted, growing taller and dropping toward the butt
         stock_len = scale * rng.uniform(0.35, 0.55)
@@ -52,13 +71,27 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
         z = np.linspace(0.0, stock_len, 10)
         f = z / stock_len
         h = rec_h * (0.5 + rng.uniform(0.4, 1.0) * f)
-        rings = [pr.ring((0, -drop * f[i] - rec_h * 0.05, rec_len / 2 - 0.03 + z[i]), pr.X, pr.Y,
-                         pr.superellipse(rec_w * 0.8, h[i] / 2, 24, 5.0)) for i in range(len(z))]
+        rings = [
+            pr.ring(
+                (0, -drop * f[i] - rec_h * 0.05, rec_len / 2 - 0.03 + z[i]),
+                pr.X,
+                pr.Y,
+                pr.superellipse(rec_w * 0.8, h[i] / 2, 24, 5.0),
+            )
+            for i in range(len(z))
+        ]
         parts.append(make_part("stock", pr.loft(rings)))
 
     if rng.random() < (0.4 if rifle else 0.1):  # scope on top of the receiver
         sl = rec_len * rng.uniform(0.7, 1.1)
         sr = rec_h * rng.uniform(0.15, 0.25)
-        prof = [(sr * 1.5, -sl / 2), (sr * 1.5, -sl * 0.35), (sr, -sl * 0.25), (sr, sl * 0.25), (sr * 1.3, sl * 0.35), (sr * 1.3, sl / 2)]
+        prof = [
+            (sr * 1.5, -sl / 2),
+            (sr * 1.5, -sl * 0.35),
+            (sr, -sl * 0.25),
+            (sr, sl * 0.25),
+            (sr * 1.3, sl * 0.35),
+            (sr * 1.3, sl / 2),
+        ]
         parts.append(make_part("scope", pr.lathe(prof, k=20, center=(0, rec_h / 2 + sr * 1.8, 0), axis="z")))
     return parts

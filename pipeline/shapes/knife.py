@@ -8,7 +8,9 @@ from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part
 
 
-def _blade(length: float, height: float, thick: float, spine_drop: float, belly: float, k: int = 24, n: int = 28) -> pr.Mesh:
+def _blade(
+    length: float, height: float, thick: float, spine_drop: float, belly: float, k: int = 24, n: int = 28
+) -> pr.Mesh:
     """Stations from the root (z = 0) to the tip (z = -length); sections thin in x, tall in y."""
     t = np.linspace(0.0, 1.0, n)  # 0 root, 1 tip
     # Spine and edge meet at the tip, whose height sets a drop-point (low) or clip-point look.
@@ -38,14 +40,21 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     z = np.linspace(0.0, handle_len, 12)
     swell = 1 + rng.uniform(0.0, 0.2) * np.sin(np.pi * z / handle_len)
     end = np.sqrt(np.clip(np.minimum(z + 0.02, handle_len - z + 0.02) / 0.04, 0.3, 1.0))
-    rings = [pr.ring((0, 0, zz), pr.X, pr.Y, pr.superellipse(hw * s * e, hh * s * e, 32, 3.0)) for zz, s, e in zip(z - 0.01, swell, end)]
+    rings = [
+        pr.ring((0, 0, zz), pr.X, pr.Y, pr.superellipse(hw * s * e, hh * s * e, 32, 3.0))
+        for zz, s, e in zip(z - 0.01, swell, end)
+    ]
     parts.append(make_part("handle", pr.loft(rings)))
 
     if rng.random() < 0.6:
         gh = blade_h * rng.uniform(0.35, 0.7)
-        guard = pr.superquadric((hw * rng.uniform(1.2, 1.8), gh, 0.015), (0, -blade_h * 0.5 + blade_h * 0.5 * 0.0, 0.0), 6.0, k=20, n=8)
+        guard = pr.superquadric(
+            (hw * rng.uniform(1.2, 1.8), gh, 0.015), (0, -blade_h * 0.5 + blade_h * 0.5 * 0.0, 0.0), 6.0, k=20, n=8
+        )
         parts.append(make_part("guard", guard))
     if rng.random() < 0.4:
         pr_ = hh * rng.uniform(0.9, 1.3)
-        parts.append(make_part("pommel", pr.superquadric((pr_ * 0.8, pr_, pr_ * 0.8), (0, 0, handle_len), 2.5, k=20, n=10)))
+        parts.append(
+            make_part("pommel", pr.superquadric((pr_ * 0.8, pr_, pr_ * 0.8), (0, 0, handle_len), 2.5, k=20, n=10))
+        )
     return parts

@@ -76,13 +76,17 @@ def loft(rings: list[np.ndarray] | np.ndarray, cap_start: bool = True, cap_end: 
 
 def ring(center: np.ndarray, u_axis: np.ndarray, v_axis: np.ndarray, pts2d: np.ndarray) -> np.ndarray:
     """Place 2D ring points (k, 2) in the plane spanned by u_axis, v_axis through center."""
-    return np.asarray(center, float) + pts2d[:, :1] * np.asarray(u_axis, float) + pts2d[:, 1:] * np.asarray(v_axis, float)
+    return (
+        np.asarray(center, float) + pts2d[:, :1] * np.asarray(u_axis, float) + pts2d[:, 1:] * np.asarray(v_axis, float)
+    )
 
 
 X, Y, Z = np.eye(3)
 
 
-def lathe(profile, k: int = 32, center=(0.0, 0.0, 0.0), axis: str = "y", exponent: float = 2.0, aspect: float = 1.0) -> Mesh:
+def lathe(
+    profile, k: int = 32, center=(0.0, 0.0, 0.0), axis: str = "y", exponent: float = 2.0, aspect: float = 1.0
+) -> Mesh:
     """Revolve a (radius, height) profile around a coordinate axis (y: rings in xz; z: rings in xy).
 
     ``exponent`` > 2 gives squarish sections, ``aspect`` scales the second in-plane axis.
@@ -93,7 +97,9 @@ def lathe(profile, k: int = 32, center=(0.0, 0.0, 0.0), axis: str = "y", exponen
     return loft(rings)
 
 
-def cylinder(radius: float, length: float, k: int = 32, center=(0, 0, 0), axis: str = "y", radius2: float | None = None) -> Mesh:
+def cylinder(
+    radius: float, length: float, k: int = 32, center=(0, 0, 0), axis: str = "y", radius2: float | None = None
+) -> Mesh:
     """Capped cylinder (or frustum when radius2 is given) centred at ``center`` along an axis."""
     r2 = radius if radius2 is None else radius2
     axes = {"x": (Y, Z, X), "y": (X, Z, Y), "z": (X, Y, Z)}
@@ -103,7 +109,9 @@ def cylinder(radius: float, length: float, k: int = 32, center=(0, 0, 0), axis: 
     return loft([ring(c - w * length / 2, u, v, circle * radius), ring(c + w * length / 2, u, v, circle * r2)])
 
 
-def superquadric(radii, center=(0, 0, 0), exponent: float = 2.0, k: int = 32, n: int = 16, vexp: float | None = None) -> Mesh:
+def superquadric(
+    radii, center=(0, 0, 0), exponent: float = 2.0, k: int = 32, n: int = 16, vexp: float | None = None
+) -> Mesh:
     """Ellipsoid (exponent 2) or rounded box (exponent ~6-10) with semi-axes ``radii`` (x, y, z).
 
     Rings lie in xz planes stacked along y; the poles are flat tiny caps (fans).
@@ -168,8 +176,6 @@ def airfoil(chord: float, thickness: float, k: int = 24) -> np.ndarray:
     upper = np.stack([x * chord, t * chord], 1)
     lower = np.stack([x[1:-1][::-1] * chord, -t[1:-1][::-1] * chord], 1)
     return np.concatenate([upper, lower])
-
-
 
 
 def transform(mesh: Mesh, rotation: np.ndarray | None = None, translation=(0, 0, 0)) -> Mesh:

@@ -66,9 +66,13 @@ def category_sheet(dataset_dir: Path, category: str, entry: dict, max_models: in
     return contact_sheet(images, labels, cols=cols)
 
 
-def write_previews(dataset_dir: Path, out_dir: Path, max_models: int = 16,
-                   categories: list[str] | None = None,
-                   refused: list[str] | None = None) -> list[Path]:
+def write_previews(
+    dataset_dir: Path,
+    out_dir: Path,
+    max_models: int = 16,
+    categories: list[str] | None = None,
+    refused: list[str] | None = None,
+) -> list[Path]:
     """Write ``preview_path(out_dir, category)`` for each category of the manifest; returns the
     paths. A category whose shards would be read from outside the dataset folder is skipped,
     with one line on why appended to ``refused`` (raised as UnsafePath when it is None)."""

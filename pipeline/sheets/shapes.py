@@ -1,6 +1,6 @@
 """Contact sheet of raw procedural shapes: one row per category.
 
-    python -m pipeline.sheets.shapes --out sheets/shapes.png --per-category 6 --seed 0
+python -m pipeline.sheets.shapes --out sheets/shapes.png --per-category 6 --seed 0
 """
 
 from __future__ import annotations
@@ -11,19 +11,32 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.core.images import contact_sheet, save_png
-from pipeline.shapes import CATEGORIES, generate
 from pipeline.core.thumbnails import render_mesh
+from pipeline.shapes import CATEGORIES, generate
 
 # Distinct muted colours per part so the part structure is visible.
-_PALETTE = np.array([
-    [200, 205, 220], [230, 160, 120], [140, 190, 150], [220, 200, 120], [160, 170, 230],
-    [210, 150, 190], [130, 200, 210], [200, 180, 160], [170, 210, 120], [230, 130, 130],
-], np.uint8)
+_PALETTE = np.array(
+    [
+        [200, 205, 220],
+        [230, 160, 120],
+        [140, 190, 150],
+        [220, 200, 120],
+        [160, 170, 230],
+        [210, 150, 190],
+        [130, 200, 210],
+        [200, 180, 160],
+        [170, 210, 120],
+        [230, 130, 130],
+    ],
+    np.uint8,
+)
 
 
 def model_thumbnail(model, size: int = 192, azimuth_deg: float = 30, elevation_deg: float = 20) -> np.ndarray:
     v, f = model.merged()
-    colors = np.concatenate([np.tile(_PALETTE[i % len(_PALETTE)], (len(p.faces), 1)) for i, p in enumerate(model.parts)])
+    colors = np.concatenate(
+        [np.tile(_PALETTE[i % len(_PALETTE)], (len(p.faces), 1)) for i, p in enumerate(model.parts)]
+    )
     return render_mesh(v, f, size=size, azimuth_deg=azimuth_deg, elevation_deg=elevation_deg, face_colors=colors)
 
 
@@ -31,7 +44,9 @@ def model_thumbnail(model, size: int = 192, azimuth_deg: float = 30, elevation_d
 VIEWS = {"mug": (120.0, 25.0), "guitar": (25.0, 15.0), "gun": (60.0, 15.0), "knife": (60.0, 20.0)}
 
 
-def build_sheet(per_category: int, seed: int, size: int = 192, categories=CATEGORIES, defect_fraction: float = 0.25) -> np.ndarray:
+def build_sheet(
+    per_category: int, seed: int, size: int = 192, categories=CATEGORIES, defect_fraction: float = 0.25
+) -> np.ndarray:
     images, labels = [], []
     for cat in categories:
         for i in range(per_category):

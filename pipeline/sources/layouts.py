@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from pipeline.core.names import is_safe_component, safe_component
-from pipeline.core.stage_keys import stage_key
 from pipeline.core.records import ModelRef
-from pipeline.sources.mesh_io import mesh_extensions
 from pipeline.core.schema import sample_key, sidecar_path
+from pipeline.core.stage_keys import stage_key
+from pipeline.sources.mesh_io import mesh_extensions
 
 # ShapeNet Core v2 synset ids of the paper's 8 categories. "gun" is the rifle synset (the
 # largest gun class, and what the procedural guns imitate); pass "03948459" to read pistols.
@@ -147,8 +147,11 @@ def iter_shapenet(root: Path, category: str) -> Iterator[ModelRef]:
     if not folder.is_dir():
         return
     # The path is reported even when the file is missing: prepare records that failure.
-    yield from unique_ids(ModelRef(name, safe_component(e.name), Path(e.path) / SHAPENET_MODEL_FILE, "shapenet")
-                          for e in _sorted_entries(folder) if e.is_dir() and not e.name.startswith("."))
+    yield from unique_ids(
+        ModelRef(name, safe_component(e.name), Path(e.path) / SHAPENET_MODEL_FILE, "shapenet")
+        for e in _sorted_entries(folder)
+        if e.is_dir() and not e.name.startswith(".")
+    )
 
 
 class ModelIdClash(ValueError):
@@ -168,7 +171,8 @@ def unique_ids(refs: Iterable[ModelRef]) -> Iterator[ModelRef]:
         if other is not ref:
             raise ModelIdClash(
                 f"{ref.category}: {other.path.name!r} and {ref.path.name!r} would both be model "
-                f"{key!r} (ids are file names without extension, '.' read as '_'); rename one of them")
+                f"{key!r} (ids are file names without extension, '.' read as '_'); rename one of them"
+            )
         yield ref
 
 
@@ -187,8 +191,7 @@ def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
     folder = root / name
     extensions = mesh_extensions()
     files = [
-        e for e in _sorted_entries(folder)
-        if not e.name.startswith(".") and Path(e.name).suffix.lower() in extensions
+        e for e in _sorted_entries(folder) if not e.name.startswith(".") and Path(e.name).suffix.lower() in extensions
     ]
     yield from unique_ids(ModelRef(category, model_id_of(e.name), Path(e.path), "folder") for e in files)
 
@@ -225,8 +228,9 @@ def iter_procedural(category: str, count: int, seed: int, work_dir: Path) -> Ite
         yield ModelRef(category, model_id, obj, "procedural")
 
 
-def iter_models(source: str, category: str, seed: int = 0, work_dir: Path | None = None,
-                count: int | None = None) -> Iterator[ModelRef]:
+def iter_models(
+    source: str, category: str, seed: int = 0, work_dir: Path | None = None, count: int | None = None
+) -> Iterator[ModelRef]:
     """Stream the models of one category of a source, in deterministic order. Every model id is
     a safe file name (``safe_component``) whatever layout made it: ids name work folders."""
     for ref in layout_of(source).models(str(source), category, seed, work_dir, count):
@@ -240,8 +244,9 @@ def list_models(source: str, category: str, limit: int | None, seed: int, work_d
     return list(it if limit is None else itertools.islice(it, limit))
 
 
-def _procedural_models(source: str, category: str, seed: int, work_dir: Path | None,
-                       count: int | None) -> Iterator[ModelRef]:
+def _procedural_models(
+    source: str, category: str, seed: int, work_dir: Path | None, count: int | None
+) -> Iterator[ModelRef]:
     if work_dir is None:
         raise ValueError("the procedural source needs a work_dir to write its meshes to")
     return iter_procedural(category, DEFAULT_PROCEDURAL_COUNT if count is None else count, seed, work_dir)
@@ -253,17 +258,29 @@ def _procedural_categories(source: str) -> list[str]:
     return sorted(CATEGORIES)
 
 
-register_layout(Layout(
-    "procedural", detect=lambda source: source == "procedural", categories=_procedural_categories,
-    models=_procedural_models))
-register_layout(Layout(
-    "shapenet",
-    detect=lambda source: Path(source).is_dir() and any(_SYNSET_RE.match(n) for n in _subdirs(source)),
-    categories=lambda source: sorted(SHAPENET_SYNSETS[d] for d in _subdirs(source) if d in SHAPENET_SYNSETS),
-    models=lambda source, category, seed, work_dir, count: iter_shapenet(Path(source), category),
-    also_accepts=lambda source: set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values())))
-register_layout(Layout(
-    "folder", detect=lambda source: Path(source).is_dir(),
-    categories=lambda source: list(_folder_categories(source)),
-    models=lambda source, category, seed, work_dir, count: iter_folder(Path(source), category),
-    catch_all=True))
+register_layout(
+    Layout(
+        "procedural",
+        detect=lambda source: source == "procedural",
+        categories=_procedural_categories,
+        models=_procedural_models,
+    )
+)
+register_layout(
+    Layout(
+        "shapenet",
+        detect=lambda source: Path(source).is_dir() and any(_SYNSET_RE.match(n) for n in _subdirs(source)),
+        categories=lambda source: sorted(SHAPENET_SYNSETS[d] for d in _subdirs(source) if d in SHAPENET_SYNSETS),
+        models=lambda source, category, seed, work_dir, count: iter_shapenet(Path(source), category),
+        also_accepts=lambda source: set(SHAPENET_SYNSETS) | set(EXTRA_SYNSETS) | set(EXTRA_SYNSETS.values()),
+    )
+)
+register_layout(
+    Layout(
+        "folder",
+        detect=lambda source: Path(source).is_dir(),
+        categories=lambda source: list(_folder_categories(source)),
+        models=lambda source, category, seed, work_dir, count: iter_folder(Path(source), category),
+        catch_all=True,
+    )
+)

@@ -31,24 +31,45 @@ _DENIED = "permission denied (check the owner and mode of the file and its folde
 
 # Signatures of common files that are not meshes, so the error can say what the file is.
 _NOT_MESH_MAGIC = {
-    b"\x89PNG": "a PNG image", b"\xff\xd8\xff": "a JPEG image", b"%PDF": "a PDF document",
-    b"PK\x03\x04": "a ZIP archive", b"\x1f\x8b": "a gzip archive", b"\x7fELF": "an executable",
+    b"\x89PNG": "a PNG image",
+    b"\xff\xd8\xff": "a JPEG image",
+    b"%PDF": "a PDF document",
+    b"PK\x03\x04": "a ZIP archive",
+    b"\x1f\x8b": "a gzip archive",
+    b"\x7fELF": "an executable",
     b"GIF8": "a GIF image",
 }
-_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2,
-              "uint16": 2, "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4,
-              "double": 8, "float64": 8}
+_PLY_SIZES = {
+    "char": 1,
+    "int8": 1,
+    "uchar": 1,
+    "uint8": 1,
+    "short": 2,
+    "int16": 2,
+    "ushort": 2,
+    "uint16": 2,
+    "int": 4,
+    "int32": 4,
+    "uint": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 _OBJ_LINE = re.compile(rb"^[ \t]*(v|vn|vt|f|o|g|mtllib|usemtl)[ \t]", re.M)
 _OBJ_ZERO = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])0(?=[/ \t\r\n]|$)", re.M)  # a face corner "0", "0/..", "0//.."
 _BOM = b"\xef\xbb\xbf"
 
 
-
-
 def _file_kind(mode: int) -> str:
-    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device")):
+    for test, name in (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -155,8 +176,9 @@ def _check_stl(path: Path, head: bytes, size: int, found: str | None) -> None:
         return
     n = int.from_bytes(head[80:84], "little") if size >= 84 else 0
     if size < 84 or size < 84 + 50 * n:
-        raise ModelError(path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) "
-                               f"but the file has {size} bytes")
+        raise ModelError(
+            path, f"truncated: binary STL declares {n} triangles ({84 + 50 * n} bytes) but the file has {size} bytes"
+        )
 
 
 def _check_ply(path: Path, head: bytes, size: int, found: str | None) -> None:
@@ -167,8 +189,9 @@ def _check_ply(path: Path, head: bytes, size: int, found: str | None) -> None:
     body_start = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
     need = _ply_min_bytes(header) if "binary" in header else 0
     if size - body_start < need:
-        raise ModelError(path, f"truncated: PLY header declares at least {need} bytes "
-                               f"of data but the file has {size - body_start}")
+        raise ModelError(
+            path, f"truncated: PLY header declares at least {need} bytes of data but the file has {size - body_start}"
+        )
     if b"format ascii" in head:
         _check_ascii_ply_body(path)
 
@@ -180,6 +203,7 @@ def _check_glb(path: Path, head: bytes, size: int, found: str | None) -> None:
 
 
 # ---------------------------------------------------------------- glTF external files
+
 
 def _gltf_json(path: Path) -> dict | None:
     """The JSON of a .gltf, or of a .glb's first (JSON) chunk; None when it is not readable as such."""
@@ -236,8 +260,11 @@ def _check_gltf_files(path: Path) -> None:
     (A missing image is not: trimesh loads the geometry without its texture.)"""
     for kind, uri, found in gltf_external_files(path):
         if kind == "buffers" and found is None:
-            raise ModelError(path, f"missing glTF buffer {uri!r}: no such file in {path.parent.name!r} "
-                                   "(external files must lie in the glTF's own folder)")
+            raise ModelError(
+                path,
+                f"missing glTF buffer {uri!r}: no such file in {path.parent.name!r} "
+                "(external files must lie in the glTF's own folder)",
+            )
 
 
 def _read_all(path: Path) -> bytes:
@@ -253,6 +280,7 @@ def _data_lines(text: str) -> list[list[str]]:
 
 
 # Whole-file checks of text meshes the parsers get wrong (each format's ``check`` calls its own).
+
 
 def _check_obj(path: Path, head: bytes, size: int, found: str | None) -> None:
     """OBJ face indices of 0: OBJ counts from 1, and a 0 silently becomes the last vertex."""
@@ -276,8 +304,11 @@ def _check_off(path: Path, head: bytes, size: int, found: str | None) -> None:
         raise ModelError(path, "corrupt OFF: no vertex and face counts after the OFF line") from None
     if len(body) != nv + nf:
         what = "truncated or wrong OFF header counts" if len(body) < nv + nf else "wrong OFF header counts"
-        raise ModelError(path, f"{what}: the header declares {nv} vertices and {nf} faces "
-                               f"({nv + nf} lines) but the file has {len(body)} data lines")
+        raise ModelError(
+            path,
+            f"{what}: the header declares {nv} vertices and {nf} faces "
+            f"({nv + nf} lines) but the file has {len(body)} data lines",
+        )
 
 
 def _check_ascii_ply_body(path: Path) -> None:
@@ -286,8 +317,7 @@ def _check_ascii_ply_body(path: Path) -> None:
     counts = [int(w[2]) for w in _data_lines(header) if w[:1] == ["element"] and len(w) >= 3 and w[2].isdigit()]
     rows = len(_data_lines(body))
     if rows < sum(counts):
-        raise ModelError(path, f"truncated: ASCII PLY header declares {sum(counts)} data lines "
-                               f"but the file has {rows}")
+        raise ModelError(path, f"truncated: ASCII PLY header declares {sum(counts)} data lines but the file has {rows}")
 
 
 def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +331,9 @@ def load_mesh(path: str | Path, max_bytes: int | None = None) -> tuple[np.ndarra
         st = os.stat(path)
     except FileNotFoundError:
         if os.path.islink(path):
-            raise ModelError(path, f"unreadable: broken link (points to {os.readlink(path)}, which does not exist)") from None
+            raise ModelError(
+                path, f"unreadable: broken link (points to {os.readlink(path)}, which does not exist)"
+            ) from None
         raise ModelError(path, "unreadable: file not found") from None
     except PermissionError:
         raise ModelError(path, f"unreadable: {_DENIED} on a folder above it") from None
@@ -361,10 +393,13 @@ def _trimesh_load(path: Path, head: bytes) -> tuple[np.ndarray, np.ndarray]:
     # the parser, or when the file name is not UTF-8 (trimesh names the geometry after it).
     if head.startswith(_BOM) or not _utf8(str(path)):
         data = _read_all(path)
-        loaded = trimesh.load(io.BytesIO(data[len(_BOM):] if data.startswith(_BOM) else data),
-                              file_type=path.suffix.lower()[1:],
-                              force="mesh", process=False,
-                              resolver=trimesh.resolvers.FilePathResolver(str(path.parent)))
+        loaded = trimesh.load(
+            io.BytesIO(data[len(_BOM) :] if data.startswith(_BOM) else data),
+            file_type=path.suffix.lower()[1:],
+            force="mesh",
+            process=False,
+            resolver=trimesh.resolvers.FilePathResolver(str(path.parent)),
+        )
     else:
         loaded = trimesh.load(str(path), force="mesh", process=False)
     if not isinstance(loaded, trimesh.Trimesh):
@@ -377,12 +412,8 @@ def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
     """Binary little-endian PLY (float32 xyz, int32 indices); equal arrays give equal bytes."""
     import trimesh
 
-    mesh = trimesh.Trimesh(
-        np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=False
-    )
-    return trimesh.exchange.ply.export_ply(
-        mesh, encoding="binary", vertex_normal=False, include_attributes=False
-    )
+    mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64), process=False)
+    return trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False, include_attributes=False)
 
 
 def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None:
@@ -406,19 +437,47 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 # Sniff order matters where tests overlap: registration order, OBJ's loose line test last.
 register_format(MeshFormat("ply", (".ply",), lambda head, size: head.startswith(b"ply"), _trimesh_load, _check_ply))
 register_format(MeshFormat("glb", (".glb",), lambda head, size: head.startswith(b"glTF"), _trimesh_load, _check_glb))
-register_format(MeshFormat(
-    "off", (".off",), lambda head, size: head.split(None, 1)[:1] in ([b"OFF"], [b"COFF"], [b"NOFF"]),
-    _trimesh_load, _check_off))
-register_format(MeshFormat(
-    "stl", (".stl",),
-    # ASCII: "solid" ... "facet"; binary: the size matches the triangle count exactly
-    lambda head, size: (_is_ascii_stl(head) and b"facet" in head.lower())
-    or (size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size),
-    _trimesh_load, _check_stl, unsniffed_ok=lambda head: not _is_ascii_stl(head)))
-register_format(MeshFormat(
-    "gltf", (".gltf",),
-    lambda head, size: head.lstrip().startswith(b"{") and b'"asset"' in head,  # every glTF has an "asset"
-    _trimesh_load, _check_glb, accepts=("glb", "gltf")))
-register_format(MeshFormat(
-    "obj", (".obj",), lambda head, size: b"\0" not in head and _OBJ_LINE.search(head) is not None,
-    _trimesh_load, _check_obj, unsniffed_ok=lambda head: True, sniff_last=True))
+register_format(
+    MeshFormat(
+        "off",
+        (".off",),
+        lambda head, size: head.split(None, 1)[:1] in ([b"OFF"], [b"COFF"], [b"NOFF"]),
+        _trimesh_load,
+        _check_off,
+    )
+)
+register_format(
+    MeshFormat(
+        "stl",
+        (".stl",),
+        # ASCII: "solid" ... "facet"; binary: the size matches the triangle count exactly
+        lambda head, size: (
+            (_is_ascii_stl(head) and b"facet" in head.lower())
+            or (size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size)
+        ),
+        _trimesh_load,
+        _check_stl,
+        unsniffed_ok=lambda head: not _is_ascii_stl(head),
+    )
+)
+register_format(
+    MeshFormat(
+        "gltf",
+        (".gltf",),
+        lambda head, size: head.lstrip().startswith(b"{") and b'"asset"' in head,  # every glTF has an "asset"
+        _trimesh_load,
+        _check_glb,
+        accepts=("glb", "gltf"),
+    )
+)
+register_format(
+    MeshFormat(
+        "obj",
+        (".obj",),
+        lambda head, size: b"\0" not in head and _OBJ_LINE.search(head) is not None,
+        _trimesh_load,
+        _check_obj,
+        unsniffed_ok=lambda head: True,
+        sniff_last=True,
+    )
+)

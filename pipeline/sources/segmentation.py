@@ -52,8 +52,9 @@ class Segmentation:
     origin: str  # "obj groups", "gltf nodes", "ply labels", "points file"
 
 
-def read_segmentation(path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str = "",
-                      labels_dir: Path | None = None) -> Segmentation | None:
+def read_segmentation(
+    path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str = "", labels_dir: Path | None = None
+) -> Segmentation | None:
     """The mesh's parts (see module docstring), or None when it carries no segmentation.
 
     ``vertices``/``faces``: the mesh as ``load_mesh`` read it (used for label-file transfer)."""
@@ -76,7 +77,7 @@ def read_segmentation(path: Path, vertices: np.ndarray, faces: np.ndarray, model
 
 
 def _is_shapenet_core(path: Path) -> bool:
-    return Path(path).parts[-len(SHAPENET_MODEL_FILE.parts):] == SHAPENET_MODEL_FILE.parts
+    return Path(path).parts[-len(SHAPENET_MODEL_FILE.parts) :] == SHAPENET_MODEL_FILE.parts
 
 
 def _obj_groups(path: Path) -> Segmentation | None:
@@ -165,8 +166,9 @@ def find_points_file(path: Path, model_id: str, labels_dir: Path | None) -> tupl
     return None
 
 
-def points_segmentation(vertices: np.ndarray, faces: np.ndarray, pts_file: Path, seg_file: Path,
-                        votes: int = 20000, seed: int = 0) -> Segmentation:
+def points_segmentation(
+    vertices: np.ndarray, faces: np.ndarray, pts_file: Path, seg_file: Path, votes: int = 20000, seed: int = 0
+) -> Segmentation:
     """Face labels by majority over ``votes`` surface samples, each taking the label of its
     nearest labelled point (both sets normalized to the unit sphere); a face no sample hit takes
     the label nearest its centre. Voting, not the centre alone: a big triangle's centre can lie
@@ -206,6 +208,7 @@ def points_segmentation(vertices: np.ndarray, faces: np.ndarray, pts_file: Path,
 
 # ---------------------------------------------------------------- part labels of a file source
 
+
 @dataclass(frozen=True)
 class PartLabelSettings:
     """How the prepare stage names a file source's parts: the same reader and map as
@@ -220,8 +223,11 @@ class PartLabelSettings:
         """What enters the prepare key of a file source: the map by content (a comment or a
         reformatting of the file rebuilds nothing), order kept (the first matching glob wins)."""
         mapping = json.dumps([list(kv) for kv in self.part_map]).encode()
-        return {"segmentation": self.segmentation, "labels_dir": self.labels_dir or None,
-                "part_map_sha256": hashlib.sha256(mapping).hexdigest() if self.part_map else None}
+        return {
+            "segmentation": self.segmentation,
+            "labels_dir": self.labels_dir or None,
+            "part_map_sha256": hashlib.sha256(mapping).hexdigest() if self.part_map else None,
+        }
 
 
 @dataclass(frozen=True)
@@ -232,18 +238,23 @@ class NamedPart:
     faces: np.ndarray
 
 
-def named_parts(path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str,
-                settings: PartLabelSettings) -> tuple[list[NamedPart], str] | None:
+def named_parts(
+    path: Path, vertices: np.ndarray, faces: np.ndarray, model_id: str, settings: PartLabelSettings
+) -> tuple[list[NamedPart], str] | None:
     """A model's parts under their common names, and the segmentation's origin; None when the
     file has no segmentation or the settings turn it off. Names as ``train.templates`` gives
     them (``map_name``; ids such as ``seg3`` keep their digits)."""
     if not settings.segmentation:
         return None
-    seg = read_segmentation(Path(path), vertices, faces, model_id,
-                            Path(settings.labels_dir) if settings.labels_dir else None)
+    seg = read_segmentation(
+        Path(path), vertices, faces, model_id, Path(settings.labels_dir) if settings.labels_dir else None
+    )
     if seg is None:
         return None
     part_map = dict(settings.part_map) or None
-    parts = [NamedPart(p.name, map_name(p.name, part_map, normalize=not p.is_id), p.vertices, p.faces)
-             for p in seg.parts if len(p.faces)]
+    parts = [
+        NamedPart(p.name, map_name(p.name, part_map, normalize=not p.is_id), p.vertices, p.faces)
+        for p in seg.parts
+        if len(p.faces)
+    ]
     return parts, seg.origin

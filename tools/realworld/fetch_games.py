@@ -58,11 +58,22 @@ class Game:
 
 
 GAMES = {
-    "torcs": Game("torcs-data", "car", re.compile(r"usr/share/games/torcs/cars/([^/]+)/\1\.acc"),
-                  lambda b: read_ac3d(b.decode("latin-1")), AC3D_TO_PROJECT),
-    "gl117": Game("gl-117-data", "airplane",
-                  re.compile(r"usr/share/games/gl-117/models/((?:gl-|transp)[^/]*)\.3ds"),
-                  read_3ds, MAX3DS_TO_PROJECT, model_prefix="gl117_", exclude=("gl-117",)),
+    "torcs": Game(
+        "torcs-data",
+        "car",
+        re.compile(r"usr/share/games/torcs/cars/([^/]+)/\1\.acc"),
+        lambda b: read_ac3d(b.decode("latin-1")),
+        AC3D_TO_PROJECT,
+    ),
+    "gl117": Game(
+        "gl-117-data",
+        "airplane",
+        re.compile(r"usr/share/games/gl-117/models/((?:gl-|transp)[^/]*)\.3ds"),
+        read_3ds,
+        MAX3DS_TO_PROJECT,
+        model_prefix="gl117_",
+        exclude=("gl-117",),
+    ),
 }
 
 

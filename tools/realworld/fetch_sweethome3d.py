@@ -32,11 +32,19 @@ import numpy as np
 
 PACKAGE = "sweethome3d-furniture"
 LIBRARY_DIR = Path("usr/share/sweethome3d/furniture")
-LICENCES = {"Scopia": "CC-BY-3.0", "KatorLegaz": "CC-BY-3.0-US", "Reallusion": "CC-BY-3.0-US",
-            "BlendSwap-CC-BY": "CC-BY-3.0", "BlendSwap-CC-0": "CC0"}
+LICENCES = {
+    "Scopia": "CC-BY-3.0",
+    "KatorLegaz": "CC-BY-3.0-US",
+    "Reallusion": "CC-BY-3.0-US",
+    "BlendSwap-CC-BY": "CC-BY-3.0",
+    "BlendSwap-CC-0": "CC0",
+}
 # catalog names per category: (include, exclude) regular expressions, case-insensitive
 PRESETS = {
-    "chair": (r"\bchair\b", r"arm|deck|wheel|beach|high|relax|ryokan|ottoman|\bbar\b|baby|rocking|lounge|office|desk|massage|swivel|garden"),
+    "chair": (
+        r"\bchair\b",
+        r"arm|deck|wheel|beach|high|relax|ryokan|ottoman|\bbar\b|baby|rocking|lounge|office|desk|massage|swivel|garden",
+    ),
     "table": (r"\btable\b", r"tennis|pool|billiard|night|bedside|dressing|changing|ping|foosball|football"),
     "sofa": (r"\bsofa\b|\bcouch\b", r"bed"),
     "lamp": (r"\blamp\b", r"street|ceiling|wall|spot"),
@@ -159,10 +167,22 @@ def main(argv: list[str] | None = None) -> int:
                     if not n_faces or n_faces > a.max_faces:
                         print(f"skip {sh3f.stem} #{e.number} {name!r}: {n_faces} triangles", file=sys.stderr)
                         continue
-                    model = re.sub(r"[^0-9a-z]+", "_", f"{sh3f.stem}_{e.fields.get('id', e.number).split('#')[-1]}".lower())
+                    model = re.sub(
+                        r"[^0-9a-z]+", "_", f"{sh3f.stem}_{e.fields.get('id', e.number).split('#')[-1]}".lower()
+                    )
                     write_obj(folder / f"{model}.obj", place(v, e.fields), groups)
-                    rows.append("\t".join([model, sh3f.stem, e.fields.get("id", ""), name, e.fields.get("creator", ""),
-                                           LICENCES.get(sh3f.stem, "see the package's copyright file")]))
+                    rows.append(
+                        "\t".join(
+                            [
+                                model,
+                                sh3f.stem,
+                                e.fields.get("id", ""),
+                                name,
+                                e.fields.get("creator", ""),
+                                LICENCES.get(sh3f.stem, "see the package's copyright file"),
+                            ]
+                        )
+                    )
         shutil.copy(Path(tmp) / "x" / "usr/share/doc" / PACKAGE / "copyright", folder / "COPYRIGHT.debian")
     (folder / "SOURCES.tsv").write_text("\n".join(rows) + "\n")
     print(f"{len(rows) - 1} models -> {folder}")

@@ -19,8 +19,21 @@ from pipeline.core.images import save_png
 from pipeline.core.thumbnails import render_mesh
 
 # colour-blind-safe palette cycled over faces (Okabe–Ito, lightened for shading)
-_PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66],
-                     [0, 114, 178], [213, 94, 0], [204, 121, 167], [170, 170, 170]]) / 255.0  # fmt: skip
+_PALETTE = (
+    np.array(
+        [
+            [230, 159, 0],
+            [86, 180, 233],
+            [0, 158, 115],
+            [240, 228, 66],
+            [0, 114, 178],
+            [213, 94, 0],
+            [204, 121, 167],
+            [170, 170, 170],
+        ]
+    )
+    / 255.0
+)
 
 
 def read_cad(path: str | Path):
@@ -80,12 +93,16 @@ def tessellate(shape, rel_deflection: float = 1e-3) -> tuple[np.ndarray, np.ndar
     return np.concatenate(verts), np.concatenate(tris), np.concatenate(owner)
 
 
-def render_cad(path: str | Path, size: int = 512, azimuths: tuple[float, ...] = (35.0,), elevation_deg: float = 25) -> np.ndarray:
+def render_cad(
+    path: str | Path, size: int = 512, azimuths: tuple[float, ...] = (35.0,), elevation_deg: float = 25
+) -> np.ndarray:
     """RGB image of a CAD file's faces (one colour each) as imported by OpenCASCADE, one
     ``size`` square per azimuth, side by side."""
     v, t, owner = tessellate(read_cad(path))
     colors = _PALETTE[owner % len(_PALETTE)]
-    views = [render_mesh(v, t, size=size, azimuth_deg=az, elevation_deg=elevation_deg, face_colors=colors) for az in azimuths]
+    views = [
+        render_mesh(v, t, size=size, azimuth_deg=az, elevation_deg=elevation_deg, face_colors=colors) for az in azimuths
+    ]
     return np.concatenate(views, axis=1)
 
 

@@ -98,11 +98,32 @@ def iges_text(nets: np.ndarray, name: str = "patches.igs", units: CadUnits = Cad
     extent = float(np.abs(nets).max()) if nets.size else 1.0
     start = ["sketch2patch: Coons patches as exact bicubic NURBS (entity 128)"]
     glob = [
-        "1H,", "1H;", _hollerith("sketch2patch"), _hollerith(name), _hollerith("sketch2patch"),
-        _hollerith("0.1.0"), "32", "38", "6", "308", "15", _hollerith("sketch2patch"), "1.0", str(flag),
-        _hollerith(unit_name), "1", _real(1e-3 * units.factor), _hollerith(_DATE), _real(1e-9 * units.factor), _real(extent), "",
-        "", "11", "0", _hollerith(_DATE),
-    ]  # fmt: skip
+        "1H,",
+        "1H;",
+        _hollerith("sketch2patch"),
+        _hollerith(name),
+        _hollerith("sketch2patch"),
+        _hollerith("0.1.0"),
+        "32",
+        "38",
+        "6",
+        "308",
+        "15",
+        _hollerith("sketch2patch"),
+        "1.0",
+        str(flag),
+        _hollerith(unit_name),
+        "1",
+        _real(1e-3 * units.factor),
+        _hollerith(_DATE),
+        _real(1e-9 * units.factor),
+        _real(extent),
+        "",
+        "",
+        "11",
+        "0",
+        _hollerith(_DATE),
+    ]
     d_lines: list[str] = []
     p_lines: list[str] = []
     for k, net in enumerate(nets):
@@ -159,9 +180,14 @@ def read_iges(path: str | Path) -> list[dict]:
         ctrl = np.array(vals[pos : pos + 3 * nu * nv]).reshape(nv, nu, 3).transpose(1, 0, 2)
         pos += 3 * nu * nv
         surfaces.append(
-            {"degree": (m1, m2), "knots": (np.array(s_knots), np.array(t_knots)), "weights": w,
-             "control": ctrl, "range": tuple(vals[pos : pos + 4])}
-        )  # fmt: skip
+            {
+                "degree": (m1, m2),
+                "knots": (np.array(s_knots), np.array(t_knots)),
+                "weights": w,
+                "control": ctrl,
+                "range": tuple(vals[pos : pos + 4]),
+            }
+        )
     return surfaces
 
 
@@ -175,8 +201,18 @@ def bspline_basis(knots: np.ndarray, degree: int, x: np.ndarray) -> np.ndarray:
     basis = ((x >= lo) & ((x < hi) | (last & (x <= hi)))).astype(np.float64)
     for d in range(1, degree + 1):
         left_den, right_den = knots[d:-1] - knots[: -d - 1], knots[d + 1 :] - knots[1:-d]
-        left = np.divide(x - knots[: -d - 1], left_den, out=np.zeros(np.broadcast_shapes(x.shape, left_den.shape)), where=left_den > 0)
-        right = np.divide(knots[d + 1 :] - x, right_den, out=np.zeros(np.broadcast_shapes(x.shape, right_den.shape)), where=right_den > 0)
+        left = np.divide(
+            x - knots[: -d - 1],
+            left_den,
+            out=np.zeros(np.broadcast_shapes(x.shape, left_den.shape)),
+            where=left_den > 0,
+        )
+        right = np.divide(
+            knots[d + 1 :] - x,
+            right_den,
+            out=np.zeros(np.broadcast_shapes(x.shape, right_den.shape)),
+            where=right_den > 0,
+        )
         basis = left * basis[..., :-1] + right * basis[..., 1:]
     return basis
 

@@ -78,8 +78,7 @@ def solid_verdict(sewn) -> KernelVerdict:
     pairs, folded = set(), set()
     for shapes in faulty:
         # an edge or vertex stands for the faces it bounds
-        owners = [[_face_index(faces, s)] if s.ShapeType() == TopAbs_FACE else _owner_faces(faces, s)
-                  for s in shapes]
+        owners = [[_face_index(faces, s)] if s.ShapeType() == TopAbs_FACE else _owner_faces(faces, s) for s in shapes]
         if len(owners) < 2:
             continue
         for a in owners[0]:

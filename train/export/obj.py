@@ -26,7 +26,11 @@ def obj_text(
 
 
 def write_obj(
-    path: str | Path, vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray | None = None, comments: list[str] | None = None
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    groups: np.ndarray | None = None,
+    comments: list[str] | None = None,
 ) -> None:
     write_bytes(path, obj_text(vertices, faces, groups, comments).encode())
 

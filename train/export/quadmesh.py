@@ -96,7 +96,9 @@ def _side_params(graph: CurveGraph, params: list[np.ndarray], p: int, k: int) ->
     return np.sort(1.0 - q) if graph.flipped[p, k] else q
 
 
-def _patch_grids(patches: np.ndarray, graph: CurveGraph, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _patch_grids(
+    patches: np.ndarray, graph: CurveGraph, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unwelded grid points, quads and owning patch of every patch for the given curve counts."""
     params = curve_params(graph, counts)
     verts, faces, owner = [], [], []
@@ -152,6 +154,7 @@ def _same_structure(a: CurveGraph, b: CurveGraph) -> bool:
     junction parameters may move: they are predicted)."""
     if a.sides.shape != b.sides.shape or len(a.curves) != len(b.curves):
         return False
+
     def kids(g: CurveGraph) -> dict[int, list[int]]:
         return {k: [c for c, _, _ in v] for k, v in g.children.items()}
 

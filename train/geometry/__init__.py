@@ -17,7 +17,7 @@ from train.geometry.coons import (
     evaluate_patches,
 )
 from train.geometry.grid import grid_params, grid_triangulation
-from train.geometry.sampling import samples_per_patch, sample_surface_uniform, uniform_params
+from train.geometry.sampling import sample_surface_uniform, samples_per_patch, uniform_params
 from train.geometry.triangulate import triangulate_patches, welded_mesh
 
 __all__ = [

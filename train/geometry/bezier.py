@@ -19,9 +19,7 @@ def bernstein(t: Tensor) -> Tensor:
 def bernstein_derivative(t: Tensor) -> Tensor:
     """d/dt of the cubic Bernstein basis, ``(...)`` → ``(..., 4)``."""
     u = 1.0 - t
-    return torch.stack(
-        [-3.0 * u * u, 3.0 * u * u - 6.0 * t * u, 6.0 * t * u - 3.0 * t * t, 3.0 * t * t], dim=-1
-    )
+    return torch.stack([-3.0 * u * u, 3.0 * u * u - 6.0 * t * u, 6.0 * t * u - 3.0 * t * t, 3.0 * t * t], dim=-1)
 
 
 def _apply_basis(ctrl: Tensor, basis: Tensor) -> Tensor:

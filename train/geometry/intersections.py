@@ -23,8 +23,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from train.geometry.triangulate import triangulate_patches
 from train.geometry.patch_pairs import CollisionPairs, unconnected_pairs
+from train.geometry.triangulate import triangulate_patches
 
 # face pairs tested per exact-test batch (keeps the (N, 3, 3) temporaries small)
 _BATCH = 200_000
@@ -82,7 +82,9 @@ def candidate_pairs(triangles: np.ndarray) -> np.ndarray:
     return pairs[overlap]
 
 
-def mesh_intersections(vertices: np.ndarray, faces: np.ndarray, patch_of_face: np.ndarray | None = None) -> Intersections:
+def mesh_intersections(
+    vertices: np.ndarray, faces: np.ndarray, patch_of_face: np.ndarray | None = None
+) -> Intersections:
     """Crossing face pairs of a triangle mesh ``vertices (V, 3)``, ``faces (F, 3)``; with
     ``patch_of_face (F,)`` they are also grouped into patch pairs and folded patches."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -92,8 +94,10 @@ def mesh_intersections(vertices: np.ndarray, faces: np.ndarray, patch_of_face: n
     # faces sharing a vertex touch there by construction: not an intersection
     shared = (f[cand[:, 0]][:, :, None] == f[cand[:, 1]][:, None, :]).any(axis=(1, 2))
     cand = cand[~shared]
-    hits = [cand[s : s + _BATCH][triangles_intersect(tri[cand[s : s + _BATCH, 0]], tri[cand[s : s + _BATCH, 1]])]
-            for s in range(0, len(cand), _BATCH)]  # fmt: skip
+    hits = [
+        cand[s : s + _BATCH][triangles_intersect(tri[cand[s : s + _BATCH, 0]], tri[cand[s : s + _BATCH, 1]])]
+        for s in range(0, len(cand), _BATCH)
+    ]
     pairs = np.concatenate(hits) if hits else np.zeros((0, 2), int)
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))] if len(pairs) else pairs.reshape(0, 2)
     if patch_of_face is None:
@@ -138,7 +142,9 @@ def triangles_intersect(ta: np.ndarray, tb: np.ndarray, tol: float = 0.0) -> np.
     return hit
 
 
-def count_intersecting_pairs(patches: Tensor, pairs: CollisionPairs | None = None, present: Tensor | None = None) -> int:
+def count_intersecting_pairs(
+    patches: Tensor, pairs: CollisionPairs | None = None, present: Tensor | None = None
+) -> int:
     """Number of patch pairs whose (truncated) triangulations intersect, for one shape
     ``patches (P, 4, 4, 3)``. ``pairs`` from ``collision_pairs(template)`` truncates pairs that
     share a boundary; by default every pair is tested in full. ``present (P,)`` bool leaves out

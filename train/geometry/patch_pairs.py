@@ -42,8 +42,12 @@ def _vertex_mask(sides: list[bool], corners: list[bool], grid: int, truncate: in
     lo_s, hi_s = i_s < truncate, i_s > grid - 1 - truncate
     lo_t, hi_t = i_t < truncate, i_t > grid - 1 - truncate
     band = truncate + 1  # corner contacts: a slightly larger square around the corner
-    near = [(i_s < band) & (i_t < band), (i_s > grid - 1 - band) & (i_t < band),
-            (i_s > grid - 1 - band) & (i_t > grid - 1 - band), (i_s < band) & (i_t > grid - 1 - band)]
+    near = [
+        (i_s < band) & (i_t < band),
+        (i_s > grid - 1 - band) & (i_t < band),
+        (i_s > grid - 1 - band) & (i_t > grid - 1 - band),
+        (i_s < band) & (i_t > grid - 1 - band),
+    ]
     drop = torch.zeros(grid, grid, dtype=torch.bool)
     for flag, region in zip(sides, (lo_t, hi_s, hi_t, lo_s)):  # c1 bottom, c2 right, c3 top, c4 left
         if flag:

@@ -49,7 +49,9 @@ def sample_surface_uniform(
         with torch.no_grad():
             verts = evaluate_patches(item, st_grid).points  # (P, V, 3)
             tri = verts[:, faces]  # (P, F, 3, 3)
-            area = 0.5 * torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]).norm(dim=-1)
+            area = 0.5 * torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :]).norm(
+                dim=-1
+            )
             weights = area.reshape(-1).double().cpu()
             choice = torch.multinomial(weights, num_points, replacement=True, generator=generator)
             uv = torch.rand((num_points, 2), generator=generator, dtype=torch.float64)

@@ -15,6 +15,18 @@ from train.losses.total import TERMS, loss_terms, total_loss, weighted_sum
 from train.losses.weights import LossWeights
 
 __all__ = [
-    "Groups", "LossWeights", "Matches", "TERMS", "chamfer_loss", "collision_loss", "flatness_loss", "loss_terms",
-    "match_points", "normal_alignment_loss", "symmetry_loss", "template_normal_loss", "total_loss", "weighted_sum",
+    "Groups",
+    "LossWeights",
+    "Matches",
+    "TERMS",
+    "chamfer_loss",
+    "collision_loss",
+    "flatness_loss",
+    "loss_terms",
+    "match_points",
+    "normal_alignment_loss",
+    "symmetry_loss",
+    "template_normal_loss",
+    "total_loss",
+    "weighted_sum",
 ]

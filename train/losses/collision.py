@@ -133,7 +133,9 @@ def _faces(grid: int, device) -> Tensor:
 def _kept_box(v: Tensor, keep: Tensor) -> tuple[Tensor, Tensor]:
     """Bounding box ``(N, 3)`` of the kept vertices ``keep (N, V)`` of ``v (N, V, 3)``."""
     k = keep[..., None]
-    return torch.where(k, v, torch.full_like(v, float("inf"))).amin(-2), torch.where(k, v, torch.full_like(v, -float("inf"))).amax(-2)
+    return torch.where(k, v, torch.full_like(v, float("inf"))).amin(-2), torch.where(
+        k, v, torch.full_like(v, -float("inf"))
+    ).amax(-2)
 
 
 def collision_loss(
@@ -165,8 +167,10 @@ def collision_loss(
         part = ~(keep_i.all(-1) & keep_j.all(-1))[k]
         lo_i, hi_i, lo_j, hi_j = lo[b, pr[k, 0]], hi[b, pr[k, 0]], lo[b, pr[k, 1]], hi[b, pr[k, 1]]
         bp, kp = b[part], k[part]
-        (lo_i[part], hi_i[part]), (lo_j[part], hi_j[part]) = (_kept_box(_at(v, bp, pr[kp, 0]), keep_i[kp]),
-                                                              _kept_box(_at(v, bp, pr[kp, 1]), keep_j[kp]))  # fmt: skip
+        (lo_i[part], hi_i[part]), (lo_j[part], hi_j[part]) = (
+            _kept_box(_at(v, bp, pr[kp, 0]), keep_i[kp]),
+            _kept_box(_at(v, bp, pr[kp, 1]), keep_j[kp]),
+        )
         cand = cand[((lo_i <= hi_j) & (lo_j <= hi_i)).all(-1)]
         b, k = cand.unbind(-1)
         pi, pj = pr[k, 0], pr[k, 1]
@@ -174,7 +178,10 @@ def collision_loss(
         cell_v = v[:, :, quad]  # (B, P, C, 4, 3)
         cells = _overlapping_cells(cell_v.amin(-2), cell_v.amax(-2), b, pi, pj, chunk)
     depth = patches.new_zeros(cand.shape[0])
-    for src, dst, k_src, k_dst, order in ((pi, pj, keep_i[k], keep_j[k], (1, 2)), (pj, pi, keep_j[k], keep_i[k], (2, 1))):
+    for src, dst, k_src, k_dst, order in (
+        (pi, pj, keep_i[k], keep_j[k], (1, 2)),
+        (pj, pi, keep_j[k], keep_i[k], (2, 1)),
+    ):
         with torch.no_grad():
             hit = _crossings(v, b, src, dst, k_src, k_dst, cells[:, (0,) + order], pairs.grid)
         if hit.shape[0] == 0:

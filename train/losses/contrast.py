@@ -22,10 +22,14 @@ def info_nce(codes: Tensor, pair_codes: Tensor, temperature: float = 0.1) -> Ten
     negatives and gives 0.
     """
     if codes.shape != pair_codes.shape or codes.dim() != 2:
-        raise ValueError(f"codes must be two (B, C) batches of one shape, got {tuple(codes.shape)} and {tuple(pair_codes.shape)}")
+        raise ValueError(
+            f"codes must be two (B, C) batches of one shape, got {tuple(codes.shape)} and {tuple(pair_codes.shape)}"
+        )
     if codes.shape[0] < 2:
         return codes.new_zeros(codes.shape[0])
     a, b = F.normalize(codes, dim=1), F.normalize(pair_codes, dim=1)
     logits = a @ b.T / temperature
     target = torch.arange(len(a), device=a.device)
-    return 0.5 * (F.cross_entropy(logits, target, reduction="none") + F.cross_entropy(logits.T, target, reduction="none"))
+    return 0.5 * (
+        F.cross_entropy(logits, target, reduction="none") + F.cross_entropy(logits.T, target, reduction="none")
+    )

@@ -19,8 +19,8 @@ from typing import Callable
 from torch import Tensor
 
 from train.geometry.coons import PatchSamples, evaluate_patches
-from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.geometry.patch_pairs import CollisionPairs
+from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.collision import collision_loss
 from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from train.losses.chamfer import Groups
 from train.geometry.patch_pairs import CollisionPairs
+from train.losses.chamfer import Groups
 from train.losses.terms import LOSS_TERMS, TermInputs
 from train.losses.weights import LossWeights
 
@@ -64,8 +64,21 @@ def loss_terms(
     A term whose weight is 0 or whose inputs are
     missing is skipped (reported as 0), which is how ablations save time.
     """
-    x = TermInputs(patches, st, target_points, target_normals, patch_mask, template_normals, control_points,
-                   symmetry_pairs, symmetry_valid, plane_x, collision, groups, match_normals)
+    x = TermInputs(
+        patches,
+        st,
+        target_points,
+        target_normals,
+        patch_mask,
+        template_normals,
+        control_points,
+        symmetry_pairs,
+        symmetry_valid,
+        plane_x,
+        collision,
+        groups,
+        match_normals,
+    )
     zero = patches.new_zeros(patches.shape[0])
     terms: dict[str, Tensor] = {}
     for term in LOSS_TERMS:

@@ -46,11 +46,17 @@ def add_weight_flags(p: argparse.ArgumentParser) -> None:
     """``--w-<term>`` (a weight) for every term and ``--no-<term>`` (weight 0) for each ablatable one."""
     regs = " and ".join(t.name for t in _TABLE if t.regularizer)
     for t in _TABLE:
-        p.add_argument(f"--w-{t.name.replace('_', '-')}", type=float, default=None,
-                       help=f"loss weight (paper: {getattr(LossWeights(), t.name)}; {regs} default to the template file's)")
+        p.add_argument(
+            f"--w-{t.name.replace('_', '-')}",
+            type=float,
+            default=None,
+            help=f"loss weight (paper: {getattr(LossWeights(), t.name)}; {regs} default to the template file's)",
+        )
     for t in _TABLE:
         if t.ablation:
-            p.add_argument(f"--no-{t.name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {t.name} = 0")
+            p.add_argument(
+                f"--no-{t.name.replace('_', '-')}", action="store_true", help=f"ablation: weight of {t.name} = 0"
+            )
 
 
 def weight_overrides(a: argparse.Namespace) -> dict[str, float]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from train.templates.sphere import sphere24, sphere54, sphere_template
 from train.templates.template import (
     Curve,
     FreePoint,
@@ -21,7 +22,6 @@ from train.templates.template import (
     load_template_file,
     save_template,
 )
-from train.templates.sphere import sphere24, sphere54, sphere_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 USER_DIR = Path("templates")  # resolved against the working folder at lookup time

@@ -15,7 +15,6 @@ With a patch budget (``BuildSettings.budget``, e.g. the paper's counts in
 from __future__ import annotations
 
 import dataclasses
-
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,15 +22,15 @@ from typing import Callable
 
 import numpy as np
 
+from pipeline.core.images import save_png
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
-from pipeline.core.images import save_png
 from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
-from train.templates.template import Template, save_template
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
 from train.templates.median import chamfer_matrix, median_index, sample_surface
 from train.templates.part_boxes import HOLLOW, category_boxes
 from train.templates.render import render_template
+from train.templates.template import Template, save_template
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 # The paper's regularizers per category (§3.3): template normals wherever a category template
@@ -54,6 +53,8 @@ def category_match_normals(category: str) -> float:
     lie 0.02-0.05 apart and face opposite ways, so nearest-point matching pairs a patch with the
     wrong side (BENCHMARKS.md, stop 14: bathtub -20 % -> -26 % vs its template, mug -34 % -> -36 %)."""
     return MATCH_NORMALS if category in HOLLOW else 0.0
+
+
 Progress = Callable[[int, int, str], None] | None
 
 
@@ -126,14 +127,23 @@ def category_median(category: str, settings: BuildSettings = BuildSettings(), pr
         optional_labels=tuple(optional),
         part_groups=PART_GROUPS.get(category, ()),
     )
-    return Median(boxes_of[ids[chosen]], clouds[chosen], tsettings, ids, ids[chosen], [float(s) for s in sums], failures)
+    return Median(
+        boxes_of[ids[chosen]], clouds[chosen], tsettings, ids, ids[chosen], [float(s) for s in sums], failures
+    )
 
 
-def build_category(category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None) -> CategoryResult:
+def build_category(
+    category: str, settings: BuildSettings = BuildSettings(), progress: Progress = None
+) -> CategoryResult:
     """The category template (median model's), built from ``settings.n_models`` procedural models."""
     med = category_median(category, settings, progress)
-    meta = {"category": category, "source": "procedural", "seed": settings.seed, "n_models": len(med.model_ids),
-            "median_model": med.chosen}  # fmt: skip
+    meta = {
+        "category": category,
+        "source": "procedural",
+        "seed": settings.seed,
+        "n_models": len(med.model_ids),
+        "median_model": med.chosen,
+    }
     budget = (settings.budget or {}).get(category)
     if budget is None:
         tpl = template_from_boxes(med.boxes, name=category, settings=med.template_settings)
@@ -141,9 +151,15 @@ def build_category(category: str, settings: BuildSettings = BuildSettings(), pro
     else:
         pick = within_budget(candidates(med.boxes, med.cloud, med.template_settings, category, settings.seed), budget)
         tpl, dist_to_median = pick.template, pick.chamfer
-        meta.update(patch_budget=budget, min_part_volume=pick.coarsening.min_volume, merge_labels=pick.coarsening.merge_labels)
-    tpl = dataclasses.replace(tpl, metadata={**tpl.metadata, **meta, "chamfer_to_median": round(float(dist_to_median), 6)},
-                              regularizers=category_regularizers(category), match_normals=category_match_normals(category))
+        meta.update(
+            patch_budget=budget, min_part_volume=pick.coarsening.min_volume, merge_labels=pick.coarsening.merge_labels
+        )
+    tpl = dataclasses.replace(
+        tpl,
+        metadata={**tpl.metadata, **meta, "chamfer_to_median": round(float(dist_to_median), 6)},
+        regularizers=category_regularizers(category),
+        match_normals=category_match_normals(category),
+    )
     return CategoryResult(tpl, med.model_ids, med.chosen, med.chamfer_sums, med.failures)
 
 
@@ -162,8 +178,10 @@ def size_table(categories: list[str], settings: BuildSettings = BuildSettings())
         pick = within_budget(cands, budget)
         front = ", ".join(f"{c.patches}: {c.chamfer:.3f}" for c in pareto(cands))
         pc = pick.coarsening
-        lines.append(f"| {cat} | {default.patches} / {default.chamfer:.4f} | {budget} | {pick.patches} / {pick.chamfer:.4f} | "
-                     f"{pc.snap_tol:g}, {pc.min_volume:g}, {'yes' if pc.merge_labels else 'no'} | {front} |")  # fmt: skip
+        lines.append(
+            f"| {cat} | {default.patches} / {default.chamfer:.4f} | {budget} | {pick.patches} / {pick.chamfer:.4f} | "
+            f"{pc.snap_tol:g}, {pc.min_volume:g}, {'yes' if pc.merge_labels else 'no'} | {front} |"
+        )
         print(f"[{n + 1}/{len(categories)}] {cat}: {len(cands)} constructions", file=sys.stderr, flush=True)
     return "\n".join(lines) + "\n"
 

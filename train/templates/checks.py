@@ -18,6 +18,7 @@ import torch
 from train.geometry.intersections import triangles_intersect
 from train.templates.template import JunctionPoint, Template
 
+
 def _active(tpl: Template, active: list[int] | None) -> list[int]:
     return tpl.active_patches() if active is None else list(active)
 
@@ -115,7 +116,9 @@ def closed_manifold_problems(tpl: Template, active: list[int] | None = None) -> 
 
 def euler_characteristic(tpl: Template, active: list[int] | None = None) -> int:
     v, f, _ = conforming_mesh(tpl, active)
-    edges = {tuple(sorted((int(a), int(b)))) for tri in f for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0]))}
+    edges = {
+        tuple(sorted((int(a), int(b)))) for tri in f for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0]))
+    }
     return len(np.unique(f)) - len(edges) + len(f)
 
 

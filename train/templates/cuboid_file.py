@@ -161,7 +161,9 @@ def read_cuboid_file(path: str | Path) -> CuboidFile:
     if "hollow" in top:
         for k, v in r.mapping(top["hollow"], "hollow", _AnyKey()).items():
             fr = r.mapping(v, f"hollow part {k!r}", {"wall", "bottom"})
-            wall, bottom = (r.number(fr[x], f"{x} of {k!r}") if x in fr else d for x, d in (("wall", 0.12), ("bottom", 0.12)))
+            wall, bottom = (
+                r.number(fr[x], f"{x} of {k!r}") if x in fr else d for x, d in (("wall", 0.12), ("bottom", 0.12))
+            )
             if not (0 < wall < 1 and 0 < bottom < 1):
                 raise r.fail(v, f"hollow part {k!r}: wall and bottom are fractions in (0, 1)")
             out.hollow[k] = (wall, bottom)
@@ -257,8 +259,11 @@ def _model(r: _Reader, node: yaml.Node, model_id: str) -> FileModel:
         tol = PAIR_TOL * float(np.max([h - l for bx in all_boxes for l, h in zip(bx.lo, bx.hi)]))
         off = max(abs(a.lo[0] - mlo), abs(a.hi[0] - mhi), *np.abs(a.lo[1:] - b.lo[1:]), *np.abs(a.hi[1:] - b.hi[1:]))
         if off > tol:
-            raise r.fail(node, f"cuboid {k + 1} and its mirror partner {other!r} (line {lines[ids[other]].start_mark.line + 1}) "
-                               f"are not mirror images about x = {plane:g} (off by {off:.3g})")
+            raise r.fail(
+                node,
+                f"cuboid {k + 1} and its mirror partner {other!r} (line {lines[ids[other]].start_mark.line + 1}) "
+                f"are not mirror images about x = {plane:g} (off by {off:.3g})",
+            )
     return FileModel(model_id, all_boxes, optional)
 
 

@@ -14,16 +14,15 @@ combination of optional parts is a closed surface, as in the paper's turbine cas
 from __future__ import annotations
 
 import dataclasses
-
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
-from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Template
-from train.templates.lattice import Box, Lattice, CuboidLike, boundary_quads, build_lattice, mirrored_boxes
+from train.templates.lattice import Box, CuboidLike, Lattice, boundary_quads, build_lattice, mirrored_boxes
 from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
+from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Template
 
 
 @dataclass(frozen=True)
@@ -43,7 +42,9 @@ def normalize_boxes(boxes: Sequence[CuboidLike], center: np.ndarray, scale: floa
 
 def box_normalization(boxes: Sequence[CuboidLike]) -> tuple[np.ndarray, float]:
     """(centre, scale) putting the boxes' bbox centre at the origin and farthest corner at 1."""
-    corners = np.array([[x, y, z] for b in boxes for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1]) for z in (b.lo[2], b.hi[2])])
+    corners = np.array(
+        [[x, y, z] for b in boxes for x in (b.lo[0], b.hi[0]) for y in (b.lo[1], b.hi[1]) for z in (b.lo[2], b.hi[2])]
+    )
     return unit_sphere_transform(corners)
 
 
@@ -69,13 +70,17 @@ def template_from_boxes(
     ps, lattice = patch_set_from_boxes(boxes, settings)
     labels = lattice.labels
     tpl = template_from_patch_set(ps, labels, name=name, optional_labels=settings.optional_labels)
-    tpl = dataclasses.replace(tpl, part_groups=part_groups(tpl.patch_labels, settings.part_groups), metadata={
-        "construction": "cuboids",
-        "lattice_lines": [len(ln) for ln in lattice.lines],
-        "filled_cells": int(lattice.filled),
-        "snap_tol": settings.snap_tol,
-        **(metadata or {}),
-    })
+    tpl = dataclasses.replace(
+        tpl,
+        part_groups=part_groups(tpl.patch_labels, settings.part_groups),
+        metadata={
+            "construction": "cuboids",
+            "lattice_lines": [len(ln) for ln in lattice.lines],
+            "filled_cells": int(lattice.filled),
+            "snap_tol": settings.snap_tol,
+            **(metadata or {}),
+        },
+    )
     if settings.symmetric and settings.declare_symmetry:
         tpl = tpl.with_symmetry(0.0, tol=1e-6)
     return tpl
@@ -159,8 +164,14 @@ def template_from_patch_set(
     for i, r in enumerate(rects):
         if r.neg >= 0:
             closing.setdefault(labels[r.neg], []).append(i)
-    return Template(points=points, curves=curves, patches=patches, name=name, optional_parts=optional,
-                    closing_patches=dict(sorted(closing.items())))  # fmt: skip
+    return Template(
+        points=points,
+        curves=curves,
+        patches=patches,
+        name=name,
+        optional_parts=optional,
+        closing_patches=dict(sorted(closing.items())),
+    )
 
 
 def part_groups(labels: list[str], groups: Sequence[tuple[str, Sequence[str]]]) -> dict[str, list[str]]:

@@ -100,7 +100,9 @@ class QuadMesh:
         """Mask of the quads on the surface when exactly the optional labels ``on`` are on."""
         opt = set(self.lattice.optional_ids)
         neg = self.neg if self.neg is not None else np.full(len(self.quads), -1)
-        return np.array([(lab not in opt or lab in on) and (n < 0 or n not in on) for lab, n in zip(self.label, neg)], bool)
+        return np.array(
+            [(lab not in opt or lab in on) and (n < 0 or n not in on) for lab, n in zip(self.label, neg)], bool
+        )
 
     def positions(self) -> np.ndarray:
         """World coordinates of the lattice vertices."""
@@ -191,6 +193,7 @@ def build_lattice(
 
 # --- non-manifold repair --------------------------------------------------------------------
 
+
 def _block_is_manifold(bits: int) -> bool:
     """Is the boundary of a 2x2x2 occupancy block (bit i = cell (i&1, i>>1&1, i>>2&1)) a disk?
 
@@ -226,7 +229,7 @@ def _bad_vertices(occ: np.ndarray) -> np.ndarray:
     code = np.zeros(tuple(s - 1 for s in p.shape), np.int64)
     for i in range(8):
         dx, dy, dz = i & 1, (i >> 1) & 1, (i >> 2) & 1
-        code |= p[dx:dx + code.shape[0], dy:dy + code.shape[1], dz:dz + code.shape[2]] << i
+        code |= p[dx : dx + code.shape[0], dy : dy + code.shape[1], dz : dz + code.shape[2]] << i
     return np.argwhere(~_MANIFOLD_TABLE[code])
 
 
@@ -281,6 +284,7 @@ def _neighbour_label(owner: np.ndarray, c: np.ndarray, occ: np.ndarray, optional
 
 
 # --- boundary quads -------------------------------------------------------------------------
+
 
 def boundary_quads(lat: Lattice) -> QuadMesh:
     """Faces between occupied and empty cells, oriented outward, with shared lattice vertices.

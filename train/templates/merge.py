@@ -240,8 +240,19 @@ def rects_from_quads(mesh: QuadMesh) -> list[Rect]:
     for q, a, s, lab, n in zip(mesh.quads, mesh.axis, mesh.sign, mesh.label, neg):
         pts = mesh.vertices[q]
         b, c = (int(a) + 1) % 3, (int(a) + 2) % 3
-        out.append(Rect(int(a), int(s), int(pts[0, a]), int(pts[:, b].min()), int(pts[:, b].max()),
-                        int(pts[:, c].min()), int(pts[:, c].max()), int(lab), int(n)))
+        out.append(
+            Rect(
+                int(a),
+                int(s),
+                int(pts[0, a]),
+                int(pts[:, b].min()),
+                int(pts[:, b].max()),
+                int(pts[:, c].min()),
+                int(pts[:, c].max()),
+                int(lab),
+                int(n),
+            )
+        )
     return out
 
 

@@ -116,8 +116,14 @@ def part_boxes(parts: Iterable[tuple[str, np.ndarray, np.ndarray]], settings: Pa
     return boxes[: settings.max_parts]
 
 
-def model_boxes(path: Path, model_id: str, settings: PartSettings = PartSettings(), seed: int = 0,
-                part_map: dict[str, str | None] | None = None, labels_dir: Path | None = None) -> ModelBoxes:
+def model_boxes(
+    path: Path,
+    model_id: str,
+    settings: PartSettings = PartSettings(),
+    seed: int = 0,
+    part_map: dict[str, str | None] | None = None,
+    labels_dir: Path | None = None,
+) -> ModelBoxes:
     """One source mesh → its normalized part boxes and surface samples.
 
     Raises ModelError (unreadable mesh) or TemplateInputError (no usable parts, a single part)."""
@@ -134,22 +140,32 @@ def model_boxes(path: Path, model_id: str, settings: PartSettings = PartSettings
     boxes = part_boxes(parts, settings)
     origin = seg.origin if seg is not None else "connected components"
     if not boxes:
-        raise TemplateInputError(f"{path}: no usable parts ({origin}: every part is under --min-part-size "
-                                 f"{settings.min_part_size} of the model's size or dropped by the part map)")
+        raise TemplateInputError(
+            f"{path}: no usable parts ({origin}: every part is under --min-part-size "
+            f"{settings.min_part_size} of the model's size or dropped by the part map)"
+        )
     if len(boxes) == 1:
         raise TemplateInputError(
             f"{path}: one part ({boxes[0].label!r}, from {origin}) spans the whole model, so the template would be "
             "a single box; give a segmentation (OBJ groups, glTF nodes, PLY labels, a .pts/.seg file), lower "
-            "--min-part-size, or write a --cuboids file")
+            "--min-part-size, or write a --cuboids file"
+        )
     rng = rng_for(seed, "templates", "user", model_id)
     cloud = sample_surface(apply_transform(v, center, scale), f, settings.chamfer_points, rng)
     return ModelBoxes(model_id, boxes, cloud, set(), origin)
 
 
-def source_models(source: str, category: str, settings: PartSettings = PartSettings(), seed: int = 0,
-                  limit: int | None = None, part_map: dict[str, str | None] | None = None,
-                  labels_dir: Path | None = None, strict: bool = False,
-                  progress: Callable[[int, str], None] | None = None) -> tuple[list[ModelBoxes], dict[str, str]]:
+def source_models(
+    source: str,
+    category: str,
+    settings: PartSettings = PartSettings(),
+    seed: int = 0,
+    limit: int | None = None,
+    part_map: dict[str, str | None] | None = None,
+    labels_dir: Path | None = None,
+    strict: bool = False,
+    progress: Callable[[int, str], None] | None = None,
+) -> tuple[list[ModelBoxes], dict[str, str]]:
     """The part boxes of every model of ``category`` in a pipeline source (any layout the
     pipeline lists), and {model id: why it was skipped}; ``strict``: raise at the first bad model."""
     from pipeline.sources.layouts import iter_models, list_categories
@@ -158,8 +174,10 @@ def source_models(source: str, category: str, settings: PartSettings = PartSetti
     if limit is not None:
         refs = refs[:limit]
     if not refs:
-        raise TemplateInputError(f"{source}: no models of category {category!r} "
-                                 f"(categories there: {', '.join(list_categories(source)) or 'none'})")
+        raise TemplateInputError(
+            f"{source}: no models of category {category!r} "
+            f"(categories there: {', '.join(list_categories(source)) or 'none'})"
+        )
     models, failures = [], {}
     for n, ref in enumerate(refs):
         try:

@@ -60,5 +60,8 @@ def render_template(
     colors = patch_colors(tpl.num_patches)[owner].astype(np.float64)
     seam = np.tile(_seam_mask(k), len(np.unique(owner)))
     colors[seam] *= 0.8
-    images = [render_mesh(v, f, size=size, azimuth_deg=az, elevation_deg=el, face_colors=colors.astype(np.uint8)) for az, el in views]
+    images = [
+        render_mesh(v, f, size=size, azimuth_deg=az, elevation_deg=el, face_colors=colors.astype(np.uint8))
+        for az, el in views
+    ]
     return np.concatenate(images, axis=1)

@@ -64,12 +64,22 @@ def sphere_template(n: int) -> Template:
             for j in range(n):
                 for i in range(n):
                     key = lambda ii, jj: tuple(int(x) for x in n * normal + (2 * ii - n) * u + (2 * jj - n) * v)
-                    p00, p10, p11, p01 = (corner(key(i, j)), corner(key(i + 1, j)), corner(key(i + 1, j + 1)), corner(key(i, j + 1)))
+                    p00, p10, p11, p01 = (
+                        corner(key(i, j)),
+                        corner(key(i + 1, j)),
+                        corner(key(i + 1, j + 1)),
+                        corner(key(i, j + 1)),
+                    )
                     cs = [curve(p00, p10), curve(p10, p11), curve(p11, p01), curve(p01, p00)]
                     label = faces[2 * axis + (0 if sign > 0 else 1)]
                     patches.append(Patch(tuple(c for c, _ in cs), tuple(r for _, r in cs), label))
-    tpl = Template(points=points, curves=curves, patches=patches, name=f"sphere{6 * n * n}",
-                   metadata={"kind": "sphere", "subdivisions": n})
+    tpl = Template(
+        points=points,
+        curves=curves,
+        patches=patches,
+        name=f"sphere{6 * n * n}",
+        metadata={"kind": "sphere", "subdivisions": n},
+    )
     return tpl.with_symmetry(plane_x=0.0, tol=1e-6)
 
 

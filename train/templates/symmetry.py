@@ -48,7 +48,8 @@ def mirror_pairs(boxes: Sequence[Box], tol: float = MIRROR_TOL) -> MirrorReport:
     self_sym = [i for i in range(n) if _gap(boxes[i], boxes[i]) <= tol]
     cand = sorted(
         (_gap(boxes[i], boxes[j]), i, j)
-        for i in range(n) for j in range(i + 1, n)
+        for i in range(n)
+        for j in range(i + 1, n)
         if boxes[i].label == boxes[j].label and i not in self_sym and j not in self_sym
     )
     used: set[int] = set(self_sym)

@@ -203,7 +203,7 @@ class Template:
             for k in range(4):
                 if chain[k][1] != chain[(k + 1) % 4][0]:
                     raise TemplateError(f"patch {pi}: curve {k + 1} does not end where curve {(k + 1) % 4 + 1} starts")
-        for kind, table in (("optional part", self.optional_parts), ("closing patches of", self.closing_patches)):  # fmt: skip
+        for kind, table in (("optional part", self.optional_parts), ("closing patches of", self.closing_patches)):
             for name, ids in table.items():
                 if any(not 0 <= i < len(self.patches) for i in ids):
                     raise TemplateError(f"{kind} {name!r}: bad patch index")
@@ -306,10 +306,15 @@ class Template:
                 rounds.append(
                     dict(
                         reg=torch.tensor(reg, dtype=torch.long, device=device),
-                        reg_pts=torch.tensor([self.curves[c].points for c in reg], dtype=torch.long, device=device).reshape(-1, 4),
+                        reg_pts=torch.tensor(
+                            [self.curves[c].points for c in reg], dtype=torch.long, device=device
+                        ).reshape(-1, 4),
                         sub=torch.tensor(sub, dtype=torch.long, device=device),
                         sub_parent=torch.tensor([self.curves[c].parent for c in sub], dtype=torch.long, device=device),
-                        sub_ab=[tuple(self._param_column(c, r) for r in (self.curves[c].start, self.curves[c].end)) for c in sub],
+                        sub_ab=[
+                            tuple(self._param_column(c, r) for r in (self.curves[c].start, self.curves[c].end))
+                            for c in sub
+                        ],
                         jun=torch.tensor(jun, dtype=torch.long, device=device),
                         jun_curve=torch.tensor([self.points[i].curve for i in jun], dtype=torch.long, device=device),
                         jun_col=torch.tensor([self._offsets[i] for i in jun], dtype=torch.long, device=device),
@@ -477,7 +482,10 @@ class Template:
                 {"points": list(c.points)} if not c.is_sub else {"parent": c.parent, "start": c.start, "end": c.end}
                 for c in self.curves
             ],
-            "patches": [{"curves": list(p.curves), "reverse": [bool(r) for r in p.reverse], "label": p.label} for p in self.patches],
+            "patches": [
+                {"curves": list(p.curves), "reverse": [bool(r) for r in p.reverse], "label": p.label}
+                for p in self.patches
+            ],
             "optional_parts": {k: [int(i) for i in v] for k, v in sorted(self.optional_parts.items())},
             "symmetry": None
             if self.symmetry is None
@@ -487,8 +495,11 @@ class Template:
                 "self": list(self.symmetry.self_points),
             },
             "metadata": self.metadata,
-            **({"closing_patches": {k: [int(i) for i in v] for k, v in sorted(self.closing_patches.items())}}
-               if self.closing_patches else {}),
+            **(
+                {"closing_patches": {k: [int(i) for i in v] for k, v in sorted(self.closing_patches.items())}}
+                if self.closing_patches
+                else {}
+            ),
             # written only when set, so templates without them keep their bytes
             **({"part_groups": {k: list(v) for k, v in sorted(self.part_groups.items())}} if self.part_groups else {}),
             **({"regularizers": dict(sorted(self.regularizers.items()))} if self.regularizers else {}),
@@ -498,20 +509,40 @@ class Template:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> "Template":
         if data.get("format") != FORMAT or data.get("version") != VERSION:
-            raise TemplateError(f"not a {FORMAT} v{VERSION} file (format={data.get('format')!r}, version={data.get('version')!r})")
+            raise TemplateError(
+                f"not a {FORMAT} v{VERSION} file (format={data.get('format')!r}, version={data.get('version')!r})"
+            )
         points: list[FreePoint | JunctionPoint] = []
         for p in data["points"]:
-            points.append(FreePoint(tuple(float(x) for x in p["xyz"])) if "xyz" in p else JunctionPoint(int(p["curve"]), float(p["t"])))
+            points.append(
+                FreePoint(tuple(float(x) for x in p["xyz"]))
+                if "xyz" in p
+                else JunctionPoint(int(p["curve"]), float(p["t"]))
+            )
         curves = [
-            Curve(points=tuple(int(x) for x in c["points"])) if "points" in c else Curve(parent=int(c["parent"]), start=int(c["start"]), end=int(c["end"]))
+            Curve(points=tuple(int(x) for x in c["points"]))
+            if "points" in c
+            else Curve(parent=int(c["parent"]), start=int(c["start"]), end=int(c["end"]))
             for c in data["curves"]
         ]
         patches = [
-            Patch(tuple(int(x) for x in p["curves"]), tuple(bool(x) for x in p.get("reverse", [False] * 4)), str(p.get("label", "")))
+            Patch(
+                tuple(int(x) for x in p["curves"]),
+                tuple(bool(x) for x in p.get("reverse", [False] * 4)),
+                str(p.get("label", "")),
+            )
             for p in data["patches"]
         ]
         sym = data.get("symmetry")
-        symmetry = None if sym is None else Symmetry(float(sym["plane_x"]), tuple(tuple(int(i) for i in p) for p in sym["pairs"]), tuple(int(i) for i in sym["self"]))
+        symmetry = (
+            None
+            if sym is None
+            else Symmetry(
+                float(sym["plane_x"]),
+                tuple(tuple(int(i) for i in p) for p in sym["pairs"]),
+                tuple(int(i) for i in sym["self"]),
+            )
+        )
         return cls(
             points=points,
             curves=curves,

@@ -81,9 +81,11 @@ class UserResult:
     def report(self) -> str:
         """Human-readable summary: presence of every part, the median, symmetry."""
         t = self.template
-        lines = [f"{t.name}: {t.num_patches} patches, {t.num_params} parameters, median model {self.chosen}, "
-                 f"Chamfer to it {t.metadata['chamfer_to_median']:.4f}",
-                 f"  symmetry: {'x = 0 plane' if self.symmetric else 'none'} ({self.mirror_pairs} mirror pairs in the median)"]
+        lines = [
+            f"{t.name}: {t.num_patches} patches, {t.num_params} parameters, median model {self.chosen}, "
+            f"Chamfer to it {t.metadata['chamfer_to_median']:.4f}",
+            f"  symmetry: {'x = 0 plane' if self.symmetric else 'none'} ({self.mirror_pairs} mirror pairs in the median)",
+        ]
         for lab, p in sorted(self.presence.items(), key=lambda kv: (-kv[1], kv[0])):
             kind = "required" if lab in self.required else "optional" if lab in self.optional else "dropped (rare)"
             if lab in self.optional and lab not in t.patch_labels:
@@ -115,11 +117,16 @@ def check_consistent(models: Sequence[ModelBoxes]) -> None:
         if labels[i] and not labels[i] & others:
             raise TemplateInputError(
                 f"{m.model_id}: its part labels {sorted(labels[i])} appear in no other model (the others use "
-                f"{sorted(others)[:12]}); inconsistent labels across models: map them to common names with --part-map")
+                f"{sorted(others)[:12]}); inconsistent labels across models: map them to common names with --part-map"
+            )
 
 
-def build_user_template(models: Sequence[ModelBoxes], name: str, settings: UserSettings = UserSettings(),
-                        skipped: dict[str, str] | None = None) -> UserResult:
+def build_user_template(
+    models: Sequence[ModelBoxes],
+    name: str,
+    settings: UserSettings = UserSettings(),
+    skipped: dict[str, str] | None = None,
+) -> UserResult:
     """The category template of ``models`` (see the module docstring); ``skipped``: models the
     caller could not read, {id: why}, carried into the report."""
     if not 0 < settings.presence_threshold <= 1 or not 0 <= settings.min_presence <= settings.presence_threshold:
@@ -152,16 +159,22 @@ def build_user_template(models: Sequence[ModelBoxes], name: str, settings: UserS
             borrowed[lab] = models[donor].model_id
     for lab, (wall, bottom) in settings.hollow.items():
         if lab not in presence:
-            raise TemplateInputError(f"{name}: hollow part {lab!r} is not a part of any model (parts: {sorted(presence)})")
+            raise TemplateInputError(
+                f"{name}: hollow part {lab!r} is not a part of any model (parts: {sorted(presence)})"
+            )
         boxes = [h for b in boxes for h in (hollow_box(b, wall, bottom) if b.label == lab else [b])]
 
     rep = mirror_pairs(boxes, settings.mirror_tol)
     symmetric = settings.symmetry == "x" or (settings.symmetry == "auto" and rep.symmetric)
     if symmetric:
         boxes = symmetrize(boxes, rep)
-    tsettings = TemplateSettings(snap_tol=settings.snap_tol, symmetric=symmetric, declare_symmetry=symmetric,
-                                 optional_labels=tuple(optional),
-                                 part_groups=tuple((k, tuple(v)) for k, v in sorted(settings.part_groups.items())))
+    tsettings = TemplateSettings(
+        snap_tol=settings.snap_tol,
+        symmetric=symmetric,
+        declare_symmetry=symmetric,
+        optional_labels=tuple(optional),
+        part_groups=tuple((k, tuple(v)) for k, v in sorted(settings.part_groups.items())),
+    )
     median = models[chosen]
     if settings.budget is None:
         tpl = template_from_boxes(boxes, name=name, settings=tsettings)
@@ -170,19 +183,46 @@ def build_user_template(models: Sequence[ModelBoxes], name: str, settings: UserS
     else:
         pick = within_budget(candidates(boxes, median.cloud, tsettings, name, settings.seed), settings.budget)
         tpl, to_median = pick.template, pick.chamfer
-        extra = {"patch_budget": settings.budget, "min_part_volume": pick.coarsening.min_volume,
-                 "merge_labels": pick.coarsening.merge_labels, "snap_tol": pick.coarsening.snap_tol}
+        extra = {
+            "patch_budget": settings.budget,
+            "min_part_volume": pick.coarsening.min_volume,
+            "merge_labels": pick.coarsening.merge_labels,
+            "snap_tol": pick.coarsening.snap_tol,
+        }
     for combo in part_combinations(tpl):
         problems = closed_manifold_problems(tpl, tpl.active_patches(combo))
         if problems:  # the lattice construction guarantees this; a failure is a bug, not bad input
             raise RuntimeError(f"{name}: parts {combo}: template is not closed: {problems[:3]}")
     meta = dict(
-        category=name, source="user", origin=sorted({m.origin for m in models if m.origin}), n_models=len(models),
-        median_model=median.model_id, presence={k: round(v, 4) for k, v in presence.items()},
-        presence_threshold=settings.presence_threshold, dropped_parts=dropped, borrowed_parts=borrowed,
-        mirror_pairs=len(rep.pairs), chamfer_to_median=round(float(to_median), 6), **extra)
-    tpl = dataclasses.replace(tpl, metadata={**tpl.metadata, **meta},
-                              regularizers={"template_normal": 1e-4, **({"symmetry": 1.0} if symmetric else {})},
-                              match_normals=MATCH_NORMALS if settings.hollow else 0.0)
-    return UserResult(tpl, median.model_id, presence, required, optional, dropped, borrowed, symmetric, len(rep.pairs),
-                      {m.model_id: float(s) for m, s in zip(models, sums)}, failures)
+        category=name,
+        source="user",
+        origin=sorted({m.origin for m in models if m.origin}),
+        n_models=len(models),
+        median_model=median.model_id,
+        presence={k: round(v, 4) for k, v in presence.items()},
+        presence_threshold=settings.presence_threshold,
+        dropped_parts=dropped,
+        borrowed_parts=borrowed,
+        mirror_pairs=len(rep.pairs),
+        chamfer_to_median=round(float(to_median), 6),
+        **extra,
+    )
+    tpl = dataclasses.replace(
+        tpl,
+        metadata={**tpl.metadata, **meta},
+        regularizers={"template_normal": 1e-4, **({"symmetry": 1.0} if symmetric else {})},
+        match_normals=MATCH_NORMALS if settings.hollow else 0.0,
+    )
+    return UserResult(
+        tpl,
+        median.model_id,
+        presence,
+        required,
+        optional,
+        dropped,
+        borrowed,
+        symmetric,
+        len(rep.pairs),
+        {m.model_id: float(s) for m, s in zip(models, sums)},
+        failures,
+    )

@@ -19,8 +19,8 @@ from augment.batch import list_views, load_gray
 from augment.settings import AugmentSettings
 from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
-from pipeline.core.records import read_record
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.records import read_record
 
 
 def draw_strokes_color(strokes: list[np.ndarray], source_size: int, size: int) -> np.ndarray:
@@ -36,8 +36,9 @@ def draw_strokes_color(strokes: list[np.ndarray], source_size: int, size: int) -
     return img
 
 
-def model_row(render_dir: Path, view: int, settings: AugmentSettings, seed: int,
-              category: str, model_id: str) -> tuple[list[np.ndarray], list[str]]:
+def model_row(
+    render_dir: Path, view: int, settings: AugmentSettings, seed: int, category: str, model_id: str
+) -> tuple[list[np.ndarray], list[str]]:
     views = dict(list_views(render_dir))
     if view not in views:
         raise FileNotFoundError(f"{render_dir}: no view {view}")
@@ -46,10 +47,12 @@ def model_row(render_dir: Path, view: int, settings: AugmentSettings, seed: int,
     strokes = vectorize(gray, settings.vectorize)
     variants = view_variants(strokes, src, settings, (seed, category, model_id, view))
     size = settings.out_size
-    images = [cv2.resize(gray, (size, size), interpolation=cv2.INTER_AREA),
-              draw_strokes_color(strokes, src, size)] + [v.image for v in variants]
+    images = [cv2.resize(gray, (size, size), interpolation=cv2.INTER_AREA), draw_strokes_color(strokes, src, size)] + [
+        v.image for v in variants
+    ]
     labels = [f"{category}/{model_id} v{view}", f"{len(strokes)} strokes"] + [
-        f"var {k} w={v.width:.1f}" for k, v in enumerate(variants)]
+        f"var {k} w={v.width:.1f}" for k, v in enumerate(variants)
+    ]
     return images, labels
 
 
@@ -67,11 +70,13 @@ def main(argv: list[str] | None = None) -> int:
 
     settings = dataclasses.replace(AugmentSettings(), variants=args.variants, out_size=args.size)
     cats = [c for c in args.categories.split(",") if c] or sorted(
-        p.name for p in args.render_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+        p.name for p in args.render_dir.iterdir() if p.is_dir() and not p.name.startswith(".")
+    )
     images, labels = [], []
     for cat in cats:
-        folders = sorted(p for p in (args.render_dir / cat).iterdir()
-                         if p.is_dir() and (read_record(p) or {}).get("status") == "ok")
+        folders = sorted(
+            p for p in (args.render_dir / cat).iterdir() if p.is_dir() and (read_record(p) or {}).get("status") == "ok"
+        )
         for folder in folders[: args.models]:
             try:
                 imgs, labs = model_row(folder, args.view, settings, args.seed, cat, folder.name)

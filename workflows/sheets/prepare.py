@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from workflows.listing import listed_models
-from workflows.build_settings import BuildSettings
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import MESH_FILE
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.schema import MESH_FILE
 from pipeline.core.thumbnails import render_mesh
 from pipeline.prepare.batch import PrepareSettings, prepare_batch
 from pipeline.sources.layouts import list_categories
 from pipeline.sources.mesh_io import load_mesh, read_ply
+from workflows.build_settings import BuildSettings
+from workflows.listing import listed_models
 
 RAW_COLOR = (0.85, 0.72, 0.6)
 PREPARED_COLOR = (0.62, 0.74, 0.88)
@@ -69,7 +69,9 @@ def build_sheet(build: BuildSettings, size: int, categories: list[str]) -> np.nd
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("sheets/prepared.png"))
-    ap.add_argument("--source", default="procedural", help="'procedural', a ShapeNet v2 root or a <root>/<category>/ folder")
+    ap.add_argument(
+        "--source", default="procedural", help="'procedural', a ShapeNet v2 root or a <root>/<category>/ folder"
+    )
     ap.add_argument("--work", type=Path, default=Path("work"), help="work dir for sources and prepared meshes")
     ap.add_argument("--per-category", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
@@ -80,8 +82,13 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     if args.per_category < 1:
         ap.error("--per-category must be >= 1")
-    build = BuildSettings(source=args.source, work_dir=args.work, models_per_category=args.per_category, seed=args.seed,
-                          prepare_overrides=json.dumps({"resolution": args.resolution, "max_faces": args.max_faces}))
+    build = BuildSettings(
+        source=args.source,
+        work_dir=args.work,
+        models_per_category=args.per_category,
+        seed=args.seed,
+        prepare_overrides=json.dumps({"resolution": args.resolution, "max_faces": args.max_faces}),
+    )
     categories = args.categories or list_categories(args.source)
     sheet = build_sheet(build, args.size, categories)
     save_png(args.out, sheet)

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from workflows.build_settings import BuildSettings
 from pipeline.core.atomic import read_json
-from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.records import model_dir, read_record
+from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
+from workflows.build_settings import BuildSettings
 
 TYPE_COLOURS = {"silhouette": (220, 30, 30), "border": (30, 120, 220), "crease": (20, 160, 60)}
 
@@ -45,8 +45,7 @@ def overlay_strokes(gray: np.ndarray, strokes: list[dict]) -> np.ndarray:
     return rgb
 
 
-def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
-                     strokes: bool = False) -> np.ndarray:
+def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8, strokes: bool = False) -> np.ndarray:
     """Rows of up to ``max_views`` views for the first ``per_category`` rendered models of each category."""
     rows: list[list[tuple[np.ndarray, str]]] = []
     for cat_dir in sorted(p for p in Path(stage_dir).iterdir() if p.is_dir() and not p.name.startswith(".")):
@@ -60,8 +59,9 @@ def sheet_from_stage(stage_dir: Path, per_category: int = 3, max_views: int = 8,
             row = []
             for i, png in enumerate(views):
                 gray = np.asarray(Image.open(png).convert("L"))
-                row.append((overlay_strokes(gray, stroke_views[i]) if strokes else gray,
-                            f"{cat_dir.name}/{model.name} v{i}"))
+                row.append(
+                    (overlay_strokes(gray, stroke_views[i]) if strokes else gray, f"{cat_dir.name}/{model.name} v{i}")
+                )
             rows.append(row)
             shown += 1
     if not any(rows):
@@ -80,19 +80,24 @@ def sheet_of_rows(rows: list[list[tuple[np.ndarray, str]]]) -> np.ndarray:
 
 def render_procedural(build: BuildSettings, categories: list[str]) -> Path:
     """The build's models → prepare → render, into the build's stage folders; returns the render one."""
-    from workflows.listing import listed_models
     from pipeline.prepare.batch import prepare_batch
     from render.batch import render_batch
+    from workflows.listing import listed_models
 
     prep = build.stage_dir("prepare")
     for cat in categories:
         refs = listed_models(build, cat)
-        records = prepare_batch(refs, prep, build.prepare_settings(), progress=_print_progress,
-                                parts=build.part_label_settings())
-        items = [(r.model_id, model_dir(prep, cat, r.model_id) / LINE_MESH_FILE)
-                 for r, rec in zip(refs, records) if rec.get("status") == "ok"]
-        render_batch(cat, items, build.stage_dir("render"), build.render_settings(), build.seed,
-                     progress=_print_progress)
+        records = prepare_batch(
+            refs, prep, build.prepare_settings(), progress=_print_progress, parts=build.part_label_settings()
+        )
+        items = [
+            (r.model_id, model_dir(prep, cat, r.model_id) / LINE_MESH_FILE)
+            for r, rec in zip(refs, records)
+            if rec.get("status") == "ok"
+        ]
+        render_batch(
+            cat, items, build.stage_dir("render"), build.render_settings(), build.seed, progress=_print_progress
+        )
     return build.stage_dir("render")
 
 
@@ -121,8 +126,13 @@ def main(argv: list[str] | None = None) -> int:
         from pipeline.shapes import CATEGORIES
 
         cats = args.categories or list(CATEGORIES)
-        build = BuildSettings(work_dir=args.work_dir, models_per_category=args.per_category, seed=args.seed,
-                              views=args.views, image_size=args.image_size)
+        build = BuildSettings(
+            work_dir=args.work_dir,
+            models_per_category=args.per_category,
+            seed=args.seed,
+            views=args.views,
+            image_size=args.image_size,
+        )
         stage = render_procedural(build, cats)
     elif args.stage_dir is not None:
         stage = args.stage_dir
