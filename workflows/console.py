@@ -269,9 +269,8 @@ class Console:
         if cls._instance is not None:
             return cls._instance
         con = cls._instance = cls(out or sys.stdout)
-        from luigi.setup_logging import InterfaceLogging
-
-        InterfaceLogging._configured = True  # Luigi must not add its own stderr handler
+        # Luigi must not add its own stderr handler: its documented switch, [core] no_configure_logging
+        luigi.configuration.get_config().set("core", "no_configure_logging", "true")
         logging.captureWarnings(True)  # warnings.warn(...) -> the "py.warnings" logger -> luigi.log
         for name in _LUIGI_LOGGERS:
             lg = logging.getLogger(name)

@@ -53,8 +53,11 @@ def add_task_arguments(parser: argparse.ArgumentParser, task: type[luigi.Task]) 
     """One ``--flag`` per parameter of ``task``, as the `luigi` command spells it. Flags not given
     are left out of the namespace, so the task's own defaults apply."""
     for name, param in task.get_params():
-        default = getattr(param, "_default", luigi.parameter._no_value)
-        shown = "" if default in (luigi.parameter._no_value, "", False) else f" (default: {default})"
+        try:  # the default, or the value luigi.cfg gives: what the task gets without the flag
+            default = param.task_value(task.get_task_family(), name)
+        except luigi.parameter.MissingParameterException:
+            default = None
+        shown = "" if default in (None, "", False) else f" (default: {default})"
         kw: dict[str, Any] = {
             "dest": name,
             "default": argparse.SUPPRESS,
