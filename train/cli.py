@@ -9,10 +9,8 @@ import sys
 from typing import TYPE_CHECKING
 
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import SettingError, add_arguments, from_args
 from train.errors import UsageError, one_line
-from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.losses.weights import add_weight_flags, weights_from_flags
 from train.templates import TemplateError
 
@@ -99,72 +97,25 @@ def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
     return dataclasses.replace(base, **changes)
 
 
-def _parts(items: list[str]) -> dict[str, bool]:
-    out = {}
-    for item in items:
-        name, _, state = item.partition("=")
-        if state not in ("on", "off"):
-            raise UsageError(f"--part {item}: use NAME=on or NAME=off")
-        out[name] = state == "on"
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train", description=__doc__)
     sub = parser.add_subparsers(dest="cmd", required=True)
     fit_parser = sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)")
     _fit_args(fit_parser)
-    ev = sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split")
-    ev.add_argument("--checkpoint", required=True)
-    ev.add_argument("--dataset", required=True)
-    ev.add_argument("--split", default="test", choices=SPLITS)
-    ev.add_argument("--category", default=None, help="default: the run's category")
-    ev.add_argument("--views", type=int, default=1)
-    ev.add_argument(
-        "--tau", type=float, nargs="+", default=[0.02, 0.05], help="F-score distance thresholds (unit-sphere frame)"
+    from train.evaluate import EvaluateSettings
+    from train.interpolate import InterpolateSettings
+    from train.predict import PredictSettings
+
+    add_arguments(
+        sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split"), EvaluateSettings
     )
-    ev.add_argument("--limit", type=int, default=None, help="evaluate at most this many samples")
-    ev.add_argument("--out", default=None, help="JSON path (default: next to the checkpoint)")
-    ev.add_argument(
-        "--cad-check",
-        type=int,
-        default=16,
-        help="check this many predictions with the CAD kernel (cad_clean: the share predict would "
-        "call clean; a second or more each; 0: off)",
+    add_arguments(
+        sub.add_parser("predict", help="patches + OBJ + quad mesh + STEP + IGES + PNG from sketches"), PredictSettings
     )
-    pr = sub.add_parser("predict", help="patches + OBJ + quad mesh + IGES + PNG from sketches")
-    pr.add_argument("--checkpoint", required=True)
-    pr.add_argument("--sketch", nargs="+", required=True, help="one or more views of the same object")
-    pr.add_argument("--out", required=True)
-    pr.add_argument(
-        "--part",
-        action="append",
-        default=[],
-        help="switch an optional part of the checkpoint's template on or off, e.g. engine=off (airplane; a wrong name is an error listing the template's parts)",
+    add_arguments(
+        sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)"),
+        InterpolateSettings,
     )
-    pr.add_argument(
-        "--units",
-        default=DEFAULT_UNITS,
-        choices=sorted(MM_PER_UNIT),
-        help="length unit declared in patches.stp / patches.igs",
-    )
-    pr.add_argument(
-        "--scale",
-        type=float,
-        default=None,
-        help=f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)",
-    )
-    pr.add_argument(
-        "--json",
-        action="store_true",
-        help="print the result as JSON on stdout (it is always written to OUT/prediction.json)",
-    )
-    it = sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)")
-    it.add_argument("--checkpoint", required=True)
-    it.add_argument("--sketch-a", nargs="+", required=True)
-    it.add_argument("--sketch-b", nargs="+", required=True)
-    it.add_argument("--steps", type=int, default=5)
-    it.add_argument("--out", required=True)
     argv = sys.argv[1:] if argv is None else list(argv)
     a = parser.parse_args(argv)
     a.given = given_flags(fit_parser, argv) if a.cmd == "fit" else set()
@@ -187,40 +138,42 @@ def _run(a: argparse.Namespace) -> None:
 
         print(json.dumps(fit(fit_settings(a, a.given), progress=not a.no_progress)))
     elif a.cmd == "evaluate":
-        from pathlib import Path
+        from train.evaluate import EvaluateSettings, evaluate, format_table
 
-        from train.evaluate import evaluate, format_table
-
-        # named after the checkpoint too, so evaluating best.pt does not overwrite checkpoint.pt's
-        ckpt = Path(a.checkpoint)
-        out = a.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{a.split}.json"))
+        e = from_args(EvaluateSettings, a)
         with torch.no_grad():
             res = evaluate(
-                a.checkpoint, a.dataset, a.split, a.category, a.views, tuple(a.tau), a.limit, out, cad_check=a.cad_check
+                e.checkpoint,
+                e.dataset,
+                e.split,
+                e.category,
+                e.views,
+                tuple(e.tau),
+                e.limit,
+                e.out_path(),
+                cad_check=e.cad_check,
             )
         print(format_table(res))
-        print(f"saved {out}")
+        print(f"saved {e.out_path()}")
     elif a.cmd == "predict":
-        from train.predict import predict
+        from train.predict import PredictSettings, predict
 
-        try:
-            units = CadUnits(a.units, a.scale)
-        except ValueError as exc:
-            raise UsageError(f"--units/--scale: {exc}") from exc
-        res = predict(a.checkpoint, a.sketch, a.out, _parts(a.part), units)
-        if a.json:
+        p = from_args(PredictSettings, a)
+        res = predict(p.checkpoint, list(p.sketch), p.out, p.parts(), p.cad_units())
+        if p.json:
             print(json.dumps(res, indent=1))
         # people read stderr: where the files are, then the verdict in words (a mesh can be
         # watertight and still pass through itself)
         print(
-            f"wrote {a.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
+            f"wrote {p.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
             file=sys.stderr,
         )
         print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]), file=sys.stderr)
     elif a.cmd == "interpolate":
-        from train.interpolate import interpolate
+        from train.interpolate import InterpolateSettings, interpolate
 
-        res = interpolate(a.checkpoint, a.sketch_a, a.sketch_b, a.out, a.steps)
+        i = from_args(InterpolateSettings, a)
+        res = interpolate(i.checkpoint, list(i.sketch_a), list(i.sketch_b), i.out, i.steps)
         print(json.dumps({k: v for k, v in res.items() if k != "params"}))
 
 

@@ -18,12 +18,15 @@ Metrics (means over samples):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
 import torch
 
 from pipeline.core.atomic import write_json
+from pipeline.core.schema import SPLITS
+from pipeline.core.settings_io import setting
 from train.data import DataSettings, make_loader
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
@@ -103,6 +106,37 @@ def mean_output(model, loader) -> torch.Tensor:
 def blind_output(model, dataset: str | Path, category: str, data: DataSettings, batch_size: int = 8) -> torch.Tensor:
     """The sketch-blind baseline ``(D,)``: the mean network output over the category's train split."""
     return mean_output(model, make_loader(dataset, category, "train", data, 0, batch_size, train=False))
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluateSettings:
+    """``python -m train evaluate``: one flag per field."""
+
+    checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
+    dataset: str = setting(help="dataset folder holding <category>/<split>-NNNNN.tar")
+    split: str = setting("test", f"split to evaluate: {', '.join(SPLITS)}")
+    category: str | None = setting(None, "category (default: the run's)")
+    views: int = setting(1, "views per sample the network sees")
+    tau: tuple[float, ...] = setting((0.02, 0.05), "F-score distance thresholds (unit-sphere frame)")
+    limit: int | None = setting(None, "evaluate at most this many samples (default: all)")
+    out: str | None = setting(None, "JSON path (default: eval_<checkpoint>_<split>.json next to the checkpoint)")
+    cad_check: int = setting(
+        16,
+        "check this many predictions with the CAD kernel (cad_clean: the share predict would call clean; "
+        "a second or more each; 0: off)",
+    )
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise UsageError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r} (--split)")
+        check_evaluate_args(self.views, tuple(self.tau), self.limit)
+        if not (isinstance(self.cad_check, int) and self.cad_check >= 0):
+            raise UsageError(f"cad_check must be an integer >= 0, got {self.cad_check!r} (--cad-check)")
+
+    def out_path(self) -> str:
+        """``out``, or a name after the checkpoint, so evaluating best.pt does not overwrite checkpoint.pt's."""
+        ckpt = Path(self.checkpoint)
+        return self.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{self.split}.json"))
 
 
 def check_evaluate_args(views: int, taus: tuple[float, ...], limit: int | None) -> None:

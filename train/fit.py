@@ -29,7 +29,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
-from pipeline.core.settings_io import SettingError, flag_name, from_dict
+from pipeline.core.settings_io import SettingError, flag_name, from_dict, setting
 from train.data import DataSettings, make_loader, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
@@ -46,35 +46,29 @@ CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "grad_
 LR_SCHEDULES = ("constant", "cosine")
 
 
-def _arg(default=dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
-    """A field with its command-line help (``python -m train fit``) and flag name when not its own."""
-    meta = {"help": help, **({"flag": flag} if flag else {})}
-    return dataclasses.field(default=default, metadata=meta)
-
-
 @dataclasses.dataclass(frozen=True)
 class FitSettings:
     """One training run; ``python -m train fit`` has a flag for each field but ``weights``."""
 
-    dataset: str = _arg(help="dataset folder holding <category>/<split>-NNNNN.tar")
-    category: str = _arg()
-    template: str = _arg(help="sphere24, sphere54, a category name, or a template file")
-    out: str = _arg(help="run folder (re-using it resumes the run)")
+    dataset: str = setting(help="dataset folder holding <category>/<split>-NNNNN.tar")
+    category: str = setting()
+    template: str = setting(help="sphere24, sphere54, a category name, or a template file")
+    out: str = setting(help="run folder (re-using it resumes the run)")
     steps: int = 1000
     batch_size: int = 8
-    lr: float = _arg(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
-    lr_schedule: str = _arg(
+    lr: float = setting(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
+    lr_schedule: str = setting(
         "constant",
         "constant, or cosine: linear warm-up over --warmup-steps, then a cosine "
         "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)",
     )
-    warmup_steps: int = _arg(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
+    warmup_steps: int = setting(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
     seed: int = 0
     workers: int = 2  # data loader worker processes per rank
     max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
-    n_points: int = _arg(DataSettings.n_points, "target / patch sample points per shape", flag="points")
+    n_points: int = setting(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
-    encoder_width: int = _arg(
+    encoder_width: int = setting(
         64,
         "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
         "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)",
@@ -83,23 +77,23 @@ class FitSettings:
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
     device: str | None = None  # default: cuda when present, else cpu
-    match_normals: float = _arg(
+    match_normals: float = setting(
         0.0,
         "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
         "(0: nearest point; the command line defaults to the template file's: 0.1 for "
         "the thin-walled bathtub and mug, docs/train.md)",
     )
-    contrast: float = _arg(
+    contrast: float = setting(
         0.0,
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off; BENCHMARKS.md)",
     )
-    clip_grad: float = _arg(
+    clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
         "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)",
     )
-    ema: float = _arg(
+    ema: float = setting(
         0.0,
         "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
         "validate, keep and hand out the average instead of the training weights (0: off; BENCHMARKS.md)",

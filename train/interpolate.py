@@ -8,6 +8,7 @@ played back or blended as a morph."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import torch
 
 from pipeline.core.atomic import atomic_path, write_json
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.settings_io import setting
 from pipeline.core.thumbnails import render_mesh
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
@@ -50,6 +52,17 @@ def write_strip(path: Path, rows: dict[str, list[QuadMesh]], clean: dict[str, li
     sheet = contact_sheet(images, labels, cols=max(len(m) for m in rows.values()))
     save_png(path, sheet)
     return sheet
+
+
+@dataclasses.dataclass(frozen=True)
+class InterpolateSettings:
+    """``python -m train interpolate``: one flag per field."""
+
+    checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
+    sketch_a: tuple[str, ...] = setting(help="drawing(s) of the first object")
+    sketch_b: tuple[str, ...] = setting(help="drawing(s) of the second object")
+    out: str = setting(help="output folder")
+    steps: int = setting(5, "frames, the two ends included")
 
 
 @torch.no_grad()

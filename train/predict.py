@@ -19,6 +19,7 @@ import torch
 
 from pipeline.core.atomic import write_json, write_npy
 from pipeline.core.images import save_png
+from pipeline.core.settings_io import setting
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
 from train.data import to_network
 from train.errors import UsageError, one_line
@@ -28,11 +29,48 @@ from train.export.kernel_check import KernelVerdict, solid_verdict
 from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
-from train.export.units import CadUnits
+from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.fit import load_run
 from train.geometry.intersections import Intersections, mesh_intersections
 from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.templates import FreePoint, JunctionPoint, Template, save_template
+
+
+@dataclasses.dataclass(frozen=True)
+class PredictSettings:
+    """``python -m train predict``: one flag per field."""
+
+    checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
+    sketch: tuple[str, ...] = setting(help="one or more drawings (views) of the same object: PNG, JPEG, WebP, TIFF")
+    out: str = setting(help="output folder")
+    part: tuple[str, ...] = setting(
+        (),
+        "optional parts of the checkpoint's template on or off, e.g. engine=off (airplane); "
+        "a wrong name is an error listing the template's parts",
+    )
+    units: str = setting(
+        DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
+    )
+    scale: float | None = setting(
+        None, f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)"
+    )
+    json: bool = setting(False, "print the result as JSON on stdout (it is always written to OUT/prediction.json)")
+
+    def parts(self) -> dict[str, bool]:
+        """``--part NAME=on|off`` as {name: present}."""
+        out = {}
+        for item in self.part:
+            name, _, state = item.partition("=")
+            if state not in ("on", "off"):
+                raise UsageError(f"--part {item}: use NAME=on or NAME=off")
+            out[name] = state == "on"
+        return out
+
+    def cad_units(self) -> CadUnits:
+        try:
+            return CadUnits(self.units, self.scale)
+        except ValueError as exc:
+            raise UsageError(f"--units/--scale: {exc}") from None
 
 
 @dataclasses.dataclass(frozen=True)

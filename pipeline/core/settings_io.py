@@ -187,6 +187,12 @@ def field_comments(cls: type) -> dict[str, str]:
     return out
 
 
+def setting(default: Any = dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
+    """A settings field with its command-line help and, when it differs, its flag name."""
+    meta = {"help": help, **({"flag": flag} if flag else {})}
+    return dataclasses.field(default=default, metadata=meta)
+
+
 def field_help(cls: type, field: dataclasses.Field) -> str:
     return field.metadata.get("help") or field_comments(cls).get(field.name, "")
 
@@ -222,7 +228,7 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, .
             kw["required"] = True
         else:
             kw["default"] = default
-            if tp is not bool and default not in (None, ""):
+            if tp is not bool and default not in (None, "", ()):
                 kw["help"] = f"{kw['help'] or ''} (default: %(default)s)".strip()
         if tp is bool:
             kw["action"] = argparse.BooleanOptionalAction
