@@ -191,3 +191,13 @@ def test_a_setting_given_twice_is_an_error_naming_both(tmp_path):
     with pytest.raises(BuildParameterError, match=r"'out_size' has its own flag \(--out-size\)"):
         check_settings(BuildSettings(augment_overrides='{"out_size": 64}', work_dir=tmp_path))
     check_settings(BuildSettings(views=8, render_overrides='{"backend": "embree"}', work_dir=tmp_path))
+
+
+def test_build_settings_check_their_ranges_for_library_callers_too(tmp_path):
+    from pipeline.core.settings_io import SettingError
+    from workflows.build_settings import BuildSettings
+
+    with pytest.raises(SettingError, match=r"views must be an integer >= 1, got 0"):
+        BuildSettings(views=0, work_dir=tmp_path)
+    with pytest.raises(SettingError, match=r"models_per_category must be an integer >= 0 \(0 = every model\)"):
+        BuildSettings(models_per_category=-1, work_dir=tmp_path)

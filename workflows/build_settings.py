@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 from augment.settings import AugmentSettings
-from pipeline.core.settings_io import from_dict, parse_json_object
+from pipeline.core.settings_io import SettingError, from_dict, parse_json_object
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
@@ -59,6 +59,18 @@ def _one_spelling(direct: dict, overrides: str) -> dict:
     return {**direct, **extra}
 
 
+# smallest allowed value of each integer setting
+MINIMUMS = {
+    "models_per_category": 0,
+    "batch_size": 1,
+    "views": 1,
+    "variants": 1,
+    "image_size": 8,
+    "out_size": 8,
+    "seed": 0,
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class BuildSettings:
     """Everything a dataset build depends on. Paths are not part of any hash."""
@@ -87,6 +99,14 @@ class BuildSettings:
     batch_size: int = dataclasses.field(
         default=16, metadata={"help": "models per batch task", "significant": False}
     )  # scheduling only, never outputs
+
+    def __post_init__(self) -> None:
+        # here, not in the command line's checks, so library callers are refused alike
+        for attr, low in MINIMUMS.items():
+            value = getattr(self, attr)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                extra = " (0 = every model)" if attr == "models_per_category" else ""
+                raise SettingError(f"{attr} must be an integer >= {low}{extra}, got {value!r}", "BuildSettings", attr)
 
     # ---- per-stage settings
     @property

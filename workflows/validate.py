@@ -20,16 +20,6 @@ class BuildParameterError(ValueError):
 
 
 _FIELDS = {f.name: f for f in dataclasses.fields(BuildSettings)}
-# smallest allowed value of each integer setting
-_MINIMUMS = {
-    "models_per_category": 0,
-    "batch_size": 1,
-    "views": 1,
-    "variants": 1,
-    "image_size": 8,
-    "out_size": 8,
-    "seed": 0,
-}
 # the per-stage settings each JSON parameter overrides
 _OVERRIDES = {
     "prepare_overrides": "prepare_settings",
@@ -49,16 +39,23 @@ def build_settings(values: dict[str, Any]) -> BuildSettings:
     try:
         return from_dict(BuildSettings, values)
     except SettingError as exc:
-        raise BuildParameterError(f"{flag(exc.field)}: {exc}" if exc.field in _FIELDS else str(exc)) from None
+        raise BuildParameterError(_named(exc)) from None
+
+
+def _named(exc: SettingError) -> str:
+    """The error as one line that starts with the flag: a range error ("views must be ...")
+    becomes "--views must be ...", any other "--views: ..."."""
+    if exc.field not in _FIELDS:
+        return str(exc)
+    text = str(exc)
+    if text.startswith(exc.field + " "):
+        return flag(exc.field) + text[len(exc.field) :]
+    return f"{flag(exc.field)}: {text}"
 
 
 def check_settings(s: BuildSettings) -> None:
-    """Numbers in range, the source present, every settings JSON parsed and type-checked."""
-    for attr, low in _MINIMUMS.items():
-        value = getattr(s, attr)
-        if not isinstance(value, int) or value < low:
-            extra = " (0 = every model)" if attr == "models_per_category" else ""
-            raise BuildParameterError(f"{flag(attr)} must be an integer >= {low}{extra}, got {value!r}")
+    """The source present, every settings JSON parsed and type-checked (numbers are in range
+    once a BuildSettings exists: its own check)."""
     if not s.is_procedural and not Path(s.source).is_dir():
         raise BuildParameterError(f"--source {s.source!r} is neither 'procedural' nor a folder")
     for attr, method in _OVERRIDES.items():
