@@ -330,7 +330,7 @@ def test_gltf_nodes_ply_labels_and_points_file_segment_a_mesh(tmp_path):
 
     # ShapeNet-part convention: points in another scale and offset, integer labels per point
     write_obj(tmp_path / "s.obj", parts, groups=False)
-    pts = whole.sample(3000, return_index=True)
+    pts = whole.sample(3000, return_index=True, seed=0)  # seeded: the same points every run
     (tmp_path / "s.pts").write_text("".join(f"{x} {y} {z}\n" for x, y, z in pts[0] * 3 + 5))
     (tmp_path / "s.seg").write_text("".join(f"{labels[i] + 1}\n" for i in pts[1]))
     mb = model_boxes(tmp_path / "s.obj", "s", part_map={"seg1": "seat", "seg2": "back", "seg3": "leg"})
