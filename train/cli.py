@@ -34,15 +34,12 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
         "(BENCHMARKS.md's quality table); any flag given overrides its value: "
         + "; ".join(f"{r}: {describe(r)}" for r in RECIPES),
     )
-    # added by hand so its default can come from the template file; the help is the field's
-    field = {f.name: f for f in dataclasses.fields(FitSettings)}["match_normals"]
-    p.add_argument("--match-normals", type=float, default=None, help=field.metadata["help"])
     add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
 
 
-# Training settings whose defaults come from the template file; the command line overrides them.
-TEMPLATE_DEFAULTS = ("weights", "match_normals")
+# Training settings whose defaults come from the template file and its flags from the loss table.
+TEMPLATE_DEFAULTS = ("weights",)
 # Required unless a recipe gives them.
 RECIPE_NAMES = ("category", "template")
 
@@ -71,13 +68,11 @@ def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSet
     missing = [f"--{n}" for n in RECIPE_NAMES if getattr(a, n) is None]
     if missing:
         raise UsageError(f"{' and '.join(missing)} required (or --recipe)")
+    from train.fit import with_template_defaults
+
     tpl = load_template(a.template)
-    return from_args(
-        FitSettings,
-        a,
-        skip=TEMPLATE_DEFAULTS,
-        weights=weights_from_flags(a, tpl.regularizers),
-        match_normals=tpl.match_normals if a.match_normals is None else a.match_normals,
+    return with_template_defaults(
+        from_args(FitSettings, a, skip=TEMPLATE_DEFAULTS, weights=weights_from_flags(a, tpl.regularizers))
     )
 
 
@@ -89,8 +84,6 @@ def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
     base = recipe(a.recipe, a.dataset, a.out)
     fields = {f.name for f in dataclasses.fields(FitSettings)} - set(TEMPLATE_DEFAULTS)
     changes = {k: getattr(a, k) for k in given & fields}
-    if "match_normals" in given:
-        changes["match_normals"] = a.match_normals
     weights = weight_overrides(a)
     if weights:
         changes["weights"] = dataclasses.replace(base.weights, **weights)

@@ -77,11 +77,11 @@ class FitSettings:
     log_every: int = 10
     val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
     device: str | None = None  # default: cuda when present, else cpu
-    match_normals: float = setting(
-        0.0,
+    match_normals: float | None = setting(
+        None,
         "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
-        "(0: nearest point; the command line defaults to the template file's: 0.1 for "
-        "the thin-walled bathtub and mug, docs/train.md)",
+        "(0: nearest point; default: the template file's, 0.1 for the thin-walled bathtub and mug, "
+        "docs/train.md)",
     )
     contrast: float = setting(
         0.0,
@@ -126,6 +126,8 @@ class FitSettings:
         )
         for name in ("clip_grad", "contrast", "match_normals"):
             value = getattr(self, name)
+            if name == "match_normals" and value is None:  # the template file's, resolved by fit
+                continue
             _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
 
     def identity(self) -> dict:
@@ -391,8 +393,17 @@ def train_step(
     return loss, terms
 
 
+def with_template_defaults(settings: FitSettings) -> FitSettings:
+    """``settings`` with what it leaves to the template file filled in (the matching λ), so the
+    run's recorded settings say what it trained with."""
+    if settings.match_normals is not None:
+        return settings
+    return dataclasses.replace(settings, match_normals=load_template(settings.template).match_normals)
+
+
 def fit(settings: FitSettings, progress: bool = True) -> dict:
     """Train (or resume) a run; returns {"step", "last_loss", "out"}. Works under torchrun."""
+    settings = with_template_defaults(settings)
     info = setup(settings.device)
     try:
         result = _fit(settings, info, progress)
