@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from pipeline.core.settings_io import setting
+
 REFERENCE_SIZE = 256
 
 
@@ -20,20 +22,20 @@ REFERENCE_SIZE = 256
 class VectorizeSettings:
     """Raster → centerline strokes. Lengths in pixels of the input image."""
 
-    ink_threshold: int | None = None  # gray level below which a pixel is ink; None = Otsu
-    max_ink_fraction: float = 0.5  # more ink than this is not a line drawing → error
-    spur_length: float = 5.0  # tip branches shorter than this at a junction are pruned
-    junction_merge: float = 3.0  # junction pixels closer than this form one junction
-    join_angle_deg: float = 45.0  # branches whose tangents bend less than this continue
-    tangent_length: float = 7.0  # arc length used to estimate a branch's end tangent
-    snap_radius: float = 4.0  # corner re-snap: snapped point must lie this close
-    corner_angle_deg: float = 50.0  # turns sharper than this (over ±tangent_length/2) are corners
-    hole_area: int = 6  # ink holes up to this many px are filled (no tiny loops)
-    link_gap: float = 3.5  # stroke ends this close, facing each other, are joined
-    link_angle_deg: float = 50.0  # ... if the gap bends each end's tangent less than this
-    min_stroke_length: float = 4.0  # shorter strokes (specks) are dropped
-    smooth_sigma: float = 1.0  # Gaussian smoothing of the pixel chain (removes stairs)
-    simplify_epsilon: float = 0.4  # Douglas–Peucker tolerance
+    ink_threshold: int | None = setting(None, "gray level below which a pixel is ink; None = Otsu")
+    max_ink_fraction: float = setting(0.5, "more ink than this is not a line drawing → error")
+    spur_length: float = setting(5.0, "tip branches shorter than this at a junction are pruned")
+    junction_merge: float = setting(3.0, "junction pixels closer than this form one junction")
+    join_angle_deg: float = setting(45.0, "branches whose tangents bend less than this continue")
+    tangent_length: float = setting(7.0, "arc length used to estimate a branch's end tangent")
+    snap_radius: float = setting(4.0, "corner re-snap: snapped point must lie this close")
+    corner_angle_deg: float = setting(50.0, "turns sharper than this (over ±tangent_length/2) are corners")
+    hole_area: int = setting(6, "ink holes up to this many px are filled (no tiny loops)")
+    link_gap: float = setting(3.5, "stroke ends this close, facing each other, are joined")
+    link_angle_deg: float = setting(50.0, "... if the gap bends each end's tangent less than this")
+    min_stroke_length: float = setting(4.0, "shorter strokes (specks) are dropped")
+    smooth_sigma: float = setting(1.0, "Gaussian smoothing of the pixel chain (removes stairs)")
+    simplify_epsilon: float = setting(0.4, "Douglas–Peucker tolerance")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,13 +47,13 @@ class AugmentSettings:
     # One width per variant, in rotation (variant k uses widths[k % len]); SynDraw: 2.5 ± 0.75.
     widths: tuple[float, ...] = (1.5, 2.5, 3.5)
     vectorize: VectorizeSettings = dataclasses.field(default_factory=VectorizeSettings)
-    resample_spacing: float = 1.0  # strokes are resampled (Catmull-Rom) at this spacing
+    resample_spacing: float = setting(1.0, "strokes are resampled (Catmull-Rom) at this spacing")
 
     # Splitting (SynDraw / peers: p ≈ 0.2–0.5, 1–3 points, 0–4 px gaps).
     split_prob: float = 0.35
     split_max_points: int = 3
     split_gap: tuple[float, float] = (0.5, 4.0)
-    split_min_piece: float = 6.0  # never leave a piece shorter than this
+    split_min_piece: float = setting(6.0, "never leave a piece shorter than this")
     # Truncation of ends (shorten each end by up to this fraction of the stroke / px).
     truncate_prob: float = 0.5
     truncate_max_fraction: float = 0.12
@@ -73,20 +75,20 @@ class AugmentSettings:
     drop_short_length: float = 8.0
     drop_short_prob: float = 0.3
     drop_prob: float = 0.02
-    drop_keep_fraction: float = 0.5  # dropped strokes return (longest first) to keep this share of ink
+    drop_keep_fraction: float = setting(0.5, "dropped strokes return (longest first) to keep this share of ink")
 
     # Pencil look. Each variant takes the next of ``tones`` and ``shading`` in rotation (as with
     # ``widths``), so the variants span dark thin line drawings and light, broad, shaded ones
     # (the paper's demo sketches: ink darkness 0.23–0.31, 3–9 % of the frame; BENCHMARKS.md).
-    tones: tuple[tuple[float, float], ...] = ((0.55, 0.95), (0.3, 0.6))  # per-stroke graphite opacity range
-    shading: tuple[float, ...] = (0.0, 0.6)  # share of strokes given soft tone beside them
-    shade_offset: tuple[float, float] = (1.5, 4.0)  # tone's distance from its stroke (reference px)
-    shade_tone: float = 0.45  # tone's opacity relative to the variant's
-    shade_width: float = 2.2  # tone's width relative to the variant's
-    taper_length: float = 10.0  # px over which pressure ramps at each end
-    pressure_noise: float = 0.15  # slow relative width variation
-    grain: float = 0.45  # 0 = solid graphite, 1 = only paper tooth
-    paper_mottle: float = 0.02  # low-frequency paper brightness variation
+    tones: tuple[tuple[float, float], ...] = setting(((0.55, 0.95), (0.3, 0.6)), "per-stroke graphite opacity range")
+    shading: tuple[float, ...] = setting((0.0, 0.6), "share of strokes given soft tone beside them")
+    shade_offset: tuple[float, float] = setting((1.5, 4.0), "tone's distance from its stroke (reference px)")
+    shade_tone: float = setting(0.45, "tone's opacity relative to the variant's")
+    shade_width: float = setting(2.2, "tone's width relative to the variant's")
+    taper_length: float = setting(10.0, "px over which pressure ramps at each end")
+    pressure_noise: float = setting(0.15, "slow relative width variation")
+    grain: float = setting(0.45, "0 = solid graphite, 1 = only paper tooth")
+    paper_mottle: float = setting(0.02, "low-frequency paper brightness variation")
     supersample: int = 4
 
     def __post_init__(self) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from pipeline.core.settings_io import setting
 from render.rigs import RIGS
 
 BACKENDS = ("freestyle", "embree")
@@ -33,29 +34,31 @@ class RenderSettings:
     ``elevation_range``; "front_side_top" three fixed cameras (``views`` is ignored).
     """
 
-    backend: str = "freestyle"  # "embree": visible feature edges by ray casting, no Blender (render.edge_lines)
+    backend: str = setting(
+        "freestyle", '"embree": visible feature edges by ray casting, no Blender (render.edge_lines)'
+    )
     views: int = 4
     image_size: int = 256
     elevation_range: tuple[float, float] = (-10.0, 40.0)
     rig: str = "representative"
-    min_view_extent: float = 0.35  # representative rig: a view's silhouette spans at least this of the frame
-    view_extent_fraction: float = 0.6  # ... and at least this share of the widest candidate's
-    view_candidates: int = 32  # ... out of this many seeded draws per model
+    min_view_extent: float = setting(0.35, "representative rig: a view's silhouette spans at least this of the frame")
+    view_extent_fraction: float = setting(0.6, "... and at least this share of the widest candidate's")
+    view_candidates: int = setting(32, "... out of this many seeded draws per model")
     orthographic: bool = False
-    lens_mm: float = 50.0  # on a 36 mm sensor: 39.6° field of view
+    lens_mm: float = setting(50.0, "on a 36 mm sensor: 39.6° field of view")
     sensor_mm: float = 36.0
-    margin: float = 1.08  # the unit sphere fills 1/margin of the half-frame
-    crease_angle_deg: float = 134.43  # Blender's default; dihedral angles below it are creases
+    margin: float = setting(1.08, "the unit sphere fills 1/margin of the half-frame")
+    crease_angle_deg: float = setting(134.43, "Blender's default; dihedral angles below it are creases")
     # what is drawn: the paper's occluding contours (silhouette, contours) and sharp edges
     # (crease), plus borders of open surfaces; visible lines only
     edge_types: tuple[str, ...] = ("silhouette", "border", "crease", "contour", "external_contour")
-    smooth_shading: bool = True  # smooth silhouettes on curved parts; edges at creases stay sharp
-    line_thickness: float = 1.5  # pixels
-    min_stroke_px: float = 0.0  # drop strokes shorter than this; >0 also opens gaps in noisy outlines
-    join_gap_px: float = 1.0  # join captured stroke fragments whose ends are this close (0: raw)
-    samples: int = 1  # Cycles samples; lines are anti-aliased by Freestyle itself
-    threads: int = 1  # Cycles render threads and the size of Blender's TBB pool (0: all CPUs)
-    timeout_s: float = 60.0  # per model; a batch gets startup_timeout_s + n * timeout_s
+    smooth_shading: bool = setting(True, "smooth silhouettes on curved parts; edges at creases stay sharp")
+    line_thickness: float = setting(1.5, "pixels")
+    min_stroke_px: float = setting(0.0, "drop strokes shorter than this; >0 also opens gaps in noisy outlines")
+    join_gap_px: float = setting(1.0, "join captured stroke fragments whose ends are this close (0: raw)")
+    samples: int = setting(1, "Cycles samples; lines are anti-aliased by Freestyle itself")
+    threads: int = setting(1, "Cycles render threads and the size of Blender's TBB pool (0: all CPUs)")
+    timeout_s: float = setting(60.0, "per model; a batch gets startup_timeout_s + n * timeout_s")
     startup_timeout_s: float = 60.0
 
     def __post_init__(self) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from augment.settings import AugmentSettings, VectorizeSettings
-from pipeline.core.settings_io import SettingError, add_arguments, flag_name, from_args, from_dict
+from pipeline.core.settings_io import SettingError, add_arguments, flag_name, from_args, from_dict, setting
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
 from render.settings import RenderSettings
@@ -25,7 +25,7 @@ class Inner:
 
 @dataclasses.dataclass(frozen=True)
 class Probe:
-    name: str = "a"  # what it is called
+    name: str = setting("a", "what it is called")
     count: int = 1
     scale: float = 1.0
     on: bool = False
@@ -91,7 +91,7 @@ def test_derived_flags_parse_into_the_same_settings() -> None:
     )
     assert from_args(Probe, p.parse_args([]), skip=("inner",)) == Probe()
     text = p.format_help()
-    assert "what it is called" in text and "sample points" in text  # help from comment / metadata
+    assert "what it is called" in text and "sample points" in text  # help from setting(help=...)
 
 
 def test_train_fit_has_a_flag_for_every_setting() -> None:

@@ -11,12 +11,14 @@ import dataclasses
 import cv2
 import numpy as np
 
+from pipeline.core.settings_io import setting
+
 
 @dataclasses.dataclass(frozen=True)
 class Jitter:
     max_rotation_deg: float = 5.0
-    min_crop: float = 0.9  # the kept square is this fraction of the side or more
-    flip: bool = False  # only where the template is bilaterally symmetric
+    min_crop: float = setting(0.9, "the kept square is this fraction of the side or more")
+    flip: bool = setting(False, "only where the template is bilaterally symmetric")
 
 
 def jitter_image(img: np.ndarray, rng: np.random.Generator, jitter: Jitter, flip: bool) -> np.ndarray:

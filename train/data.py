@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, shard_glob, sketch_view_variant
 from pipeline.core.seeding import rng_for
+from pipeline.core.settings_io import setting
 from train.augmentation import Jitter, jitter_image
 from train.errors import UsageError
 from train.sketch_input import Framing, measure_framing
@@ -34,11 +35,11 @@ from train.sketch_input import Framing, measure_framing
 
 @dataclasses.dataclass(frozen=True)
 class DataSettings:
-    max_views: int = 4  # training draws 1..max_views views per sample
+    max_views: int = setting(4, "training draws 1..max_views views per sample")
     # training also returns "pair_images" (1, S, S): another drawing of the same model (another
     # view or pencil variant than the first one drawn), for the contrastive term
     pair: bool = False
-    eval_views: int = 1  # evaluation uses views 0..eval_views-1, variant 0
+    eval_views: int = setting(1, "evaluation uses views 0..eval_views-1, variant 0")
     n_points: int = 7000
     image_size: int = 128
     shuffle_buffer: int = 64

@@ -64,8 +64,8 @@ class FitSettings:
     )
     warmup_steps: int = setting(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
     seed: int = 0
-    workers: int = 2  # data loader worker processes per rank
-    max_views: int = DataSettings.max_views  # training draws 1..max_views views per sample
+    workers: int = setting(2, "data loader worker processes per rank")
+    max_views: int = setting(DataSettings.max_views, "training draws 1..max_views views per sample")
     n_points: int = setting(DataSettings.n_points, "target / patch sample points per shape", flag="points")
     image_size: int = DataSettings.image_size
     encoder_width: int = setting(
@@ -75,8 +75,8 @@ class FitSettings:
     )
     checkpoint_every: int = 500
     log_every: int = 10
-    val_every: int = 0  # validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)
-    device: str | None = None  # default: cuda when present, else cpu
+    val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
+    device: str | None = setting(None, "default: cuda when present, else cpu")
     match_normals: float | None = setting(
         None,
         "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 from augment.settings import AugmentSettings
-from pipeline.core.settings_io import SettingError, from_dict, parse_json_object
+from pipeline.core.settings_io import SettingError, from_dict, parse_json_object, setting
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
 from pipeline.dataset.shards import ShardSettings
 from pipeline.prepare.settings import PrepareSettings
@@ -77,13 +77,13 @@ class BuildSettings:
 
     # The stage settings a build names directly take their defaults from the stage classes: one
     # default per setting. Flags and Luigi parameters are made from these fields (help: comments).
-    source: str = "procedural"  # 'procedural' or a ShapeNet / <root>/<category>/ folder
-    models_per_category: int = 16  # models per category (0 = all)
-    views: int = RenderSettings.views  # rendered views per model
-    variants: int = AugmentSettings.variants  # pencil variants per view
-    image_size: int = RenderSettings.image_size  # render size in pixels; sketches are written at out_size
-    out_size: int = AugmentSettings.out_size  # sketch size in pixels
-    seed: int = PrepareSettings.seed  # seeds every stage (sampling, cameras, pencil, splits)
+    source: str = setting("procedural", "'procedural' or a ShapeNet / <root>/<category>/ folder")
+    models_per_category: int = setting(16, "models per category (0 = all)")
+    views: int = setting(RenderSettings.views, "rendered views per model")
+    variants: int = setting(AugmentSettings.variants, "pencil variants per view")
+    image_size: int = setting(RenderSettings.image_size, "render size in pixels; sketches are written at out_size")
+    out_size: int = setting(AugmentSettings.out_size, "sketch size in pixels")
+    seed: int = setting(PrepareSettings.seed, "seeds every stage (sampling, cameras, pencil, splits)")
     # JSON objects of further per-stage settings; the flags keep their historical names
     prepare_overrides: str = _overrides("PrepareSettings", "prepare_settings")
     render_overrides: str = _overrides("RenderSettings", "render_settings")
@@ -91,11 +91,13 @@ class BuildSettings:
     shard_overrides: str = _overrides("ShardSettings", "shard_settings")
     # A file source's part labels (procedural parts come from the generator): read as
     # `python -m train.templates build --source` reads them, so shards match that template.
-    part_labels: str = "segmentation"  # file source: 'segmentation' (OBJ/glTF/PLY groups, .pts/.seg) or 'none'
-    part_map: str = ""  # file source: YAML/JSON {part name or glob: common name or null}, as templates build --part-map
-    labels_dir: str = ""  # file source: folder of points/<id>.pts + points_label/<id>.seg (ShapeNet-part)
-    work_dir: Path = DEFAULT_WORK_DIR  # stage outputs, keyed by settings (never part of a hash)
-    dataset_dir: Path = DEFAULT_DATASET_DIR  # shards and manifest.json
+    part_labels: str = setting("segmentation", "file source: 'segmentation' (OBJ/glTF/PLY groups, .pts/.seg) or 'none'")
+    part_map: str = setting(
+        "", "file source: YAML/JSON {part name or glob: common name or null}, as templates build --part-map"
+    )
+    labels_dir: str = setting("", "file source: folder of points/<id>.pts + points_label/<id>.seg (ShapeNet-part)")
+    work_dir: Path = setting(DEFAULT_WORK_DIR, "stage outputs, keyed by settings (never part of a hash)")
+    dataset_dir: Path = setting(DEFAULT_DATASET_DIR, "shards and manifest.json")
     batch_size: int = dataclasses.field(
         default=16, metadata={"help": "models per batch task", "significant": False}
     )  # scheduling only, never outputs

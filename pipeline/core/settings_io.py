@@ -2,8 +2,9 @@
 are turned back into settings by ``from_dict``, and command lines are made from the fields by
 ``add_arguments`` / ``from_args`` (Luigi parameters: ``workflows.params``).
 
-A field's help is its ``metadata["help"]``, else the comment at the end of its line in the class
-body; ``metadata["flag"]`` renames its command-line flag (``n_points`` is ``--points``).
+A field is made with ``setting(default, help, flag)``: its help is ``metadata["help"]``, the one
+place a setting's command-line help comes from; ``flag`` renames its command-line flag
+(``n_points`` is ``--points``).
 """
 
 from __future__ import annotations
@@ -11,10 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import inspect
-import io
 import json
-import tokenize
 import types
 import typing
 from pathlib import Path
@@ -169,24 +167,6 @@ def parse_json_object(text: str | dict | None) -> dict:
 # ---------------------------------------------------------------- command lines
 
 
-@functools.lru_cache(maxsize=None)
-def field_comments(cls: type) -> dict[str, str]:
-    """The comment ending each field's line in ``cls``'s body (``x: int = 3  # what x is``)."""
-    try:
-        lines = inspect.getsource(cls)
-    except (OSError, TypeError):
-        return {}
-    names = {f.name for f in dataclasses.fields(cls)}
-    out: dict[str, str] = {}
-    first_on_line: dict[int, str] = {}
-    for tok in tokenize.generate_tokens(io.StringIO(lines).readline):
-        if tok.type == tokenize.NAME and tok.start[0] not in first_on_line:
-            first_on_line[tok.start[0]] = tok.string
-        elif tok.type == tokenize.COMMENT and first_on_line.get(tok.start[0]) in names:
-            out.setdefault(first_on_line[tok.start[0]], tok.string.lstrip("#").strip())
-    return out
-
-
 def setting(default: Any = dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
     """A settings field with its command-line help and, when it differs, its flag name."""
     meta = {"help": help, **({"flag": flag} if flag else {})}
@@ -194,7 +174,8 @@ def setting(default: Any = dataclasses.MISSING, help: str = "", flag: str | None
 
 
 def field_help(cls: type, field: dataclasses.Field) -> str:
-    return field.metadata.get("help") or field_comments(cls).get(field.name, "")
+    """The field's command-line help: what ``setting(help=...)`` gave it."""
+    return field.metadata.get("help", "")
 
 
 def flag_name(field: dataclasses.Field) -> str:

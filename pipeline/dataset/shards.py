@@ -57,6 +57,7 @@ from pipeline.core.schema import (
     shard_name,
 )
 from pipeline.core.seeding import rng_for
+from pipeline.core.settings_io import setting
 from pipeline.core.splits import DEFAULT_FRACTIONS, split_of
 from pipeline.dataset.point_parts import prepared_point_parts, procedural_point_parts, source_obj
 
@@ -71,7 +72,7 @@ class ShardSettings:
 
     max_samples_per_shard: int = 256
     max_bytes_per_shard: int = 512 * 2**20
-    points: int = 16384  # points per sample; the prepared samples are subsampled when larger
+    points: int = setting(16384, "points per sample; the prepared samples are subsampled when larger")
     split_fractions: tuple[float, float, float] = DEFAULT_FRACTIONS
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from pipeline.core.settings_io import setting
+
 
 @dataclasses.dataclass(frozen=True)
 class PrepareSettings:
@@ -20,8 +22,8 @@ class PrepareSettings:
     # is the exception (a dense input): at 20000 it cost ~0.16 CPU s per model for a few thousand
     # faces less (BENCHMARKS.md, stop 17); the samples lie on the mesh either way.
     max_faces: int = 50000
-    n_samples: int = 16384  # surface points (+ normals) in samples.npy
-    seed: int = 0  # keys the sampling generator and the Manifold octree seed
+    n_samples: int = setting(16384, "surface points (+ normals) in samples.npy")
+    seed: int = setting(0, "keys the sampling generator and the Manifold octree seed")
     # Bad-input bounds: beyond these a model fails with a clear reason instead of eating the box.
     max_input_faces: int = 2_000_000
     max_input_bytes: int = 1 << 30

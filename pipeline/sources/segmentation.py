@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.errors import ModelError
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
+from pipeline.core.settings_io import setting
 from pipeline.sources.layouts import SHAPENET_MODEL_FILE
 from pipeline.sources.part_names import map_name
 
@@ -215,9 +216,9 @@ class PartLabelSettings:
     ``python -m train.templates build --source`` (its ``--components``, ``--part-map``,
     ``--labels-dir``), so shard labels and template part names agree."""
 
-    segmentation: bool = True  # False: no part labels (every template part counts as present)
-    part_map: tuple[tuple[str, str | None], ...] = ()  # read_part_map's entries, in file order
-    labels_dir: str = ""  # folder with points/<id>.pts + points_label/<id>.seg
+    segmentation: bool = setting(True, "False: no part labels (every template part counts as present)")
+    part_map: tuple[tuple[str, str | None], ...] = setting((), "read_part_map's entries, in file order")
+    labels_dir: str = setting("", "folder with points/<id>.pts + points_label/<id>.seg")
 
     def key(self) -> dict:
         """What enters the prepare key of a file source: the map by content (a comment or a

@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.core.images import save_png
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
+from pipeline.core.settings_io import setting
 from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
 from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
 from train.templates.median import chamfer_matrix, median_index, sample_surface
@@ -64,7 +65,7 @@ class BuildSettings:
     seed: int = 0
     chamfer_points: int = 2048
     template: TemplateSettings = TemplateSettings()
-    budget: dict[str, int] | None = None  # max patches per category (missing: no budget)
+    budget: dict[str, int] | None = setting(None, "max patches per category (missing: no budget)")
 
 
 @dataclass

@@ -20,6 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
+from pipeline.core.settings_io import setting
 from train.templates.lattice import Box, CuboidLike, Lattice, boundary_quads, build_lattice, mirrored_boxes
 from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
 from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Template
@@ -27,9 +28,9 @@ from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Tem
 
 @dataclass(frozen=True)
 class TemplateSettings:
-    snap_tol: float = 0.01  # grid lines closer than this (normalized units) are snapped together
-    symmetric: bool = True  # mirror the cuboids across x = 0 and merge in mirror pairs
-    declare_symmetry: bool = True  # store the plane and point pairs (the symmetry loss uses them)
+    snap_tol: float = setting(0.01, "grid lines closer than this (normalized units) are snapped together")
+    symmetric: bool = setting(True, "mirror the cuboids across x = 0 and merge in mirror pairs")
+    declare_symmetry: bool = setting(True, "store the plane and point pairs (the symmetry loss uses them)")
     optional_labels: tuple[str, ...] = ("turbine", "engine")
     # part groups with separate loss terms: group name -> labels; unlisted labels form "body"
     part_groups: tuple[tuple[str, tuple[str, ...]], ...] = ()

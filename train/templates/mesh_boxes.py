@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from pipeline.core.errors import ModelError
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
+from pipeline.core.settings_io import setting
 from pipeline.sources.mesh_io import load_mesh
 from pipeline.sources.part_names import map_name
 from pipeline.sources.segmentation import RawPart, read_segmentation
@@ -36,11 +37,11 @@ COMPONENT_LABEL = "part"
 
 @dataclass(frozen=True)
 class PartSettings:
-    min_part_size: float = 0.04  # fraction of the model's diameter; smaller components are dropped
-    merge_overlap: float = 0.5  # a box this much (of its volume) inside another of its label is merged into it
-    min_thickness: float = 0.02  # normalized units: flat parts (one-sided panels) get this depth
-    max_parts: int = 32  # boxes kept per model, largest surface first
-    use_segmentation: bool = True  # False: connected components even when the file has labels
+    min_part_size: float = setting(0.04, "fraction of the model's diameter; smaller components are dropped")
+    merge_overlap: float = setting(0.5, "a box this much (of its volume) inside another of its label is merged into it")
+    min_thickness: float = setting(0.02, "normalized units: flat parts (one-sided panels) get this depth")
+    max_parts: int = setting(32, "boxes kept per model, largest surface first")
+    use_segmentation: bool = setting(True, "False: connected components even when the file has labels")
     chamfer_points: int = 2048
 
 

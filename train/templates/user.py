@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pipeline.core.settings_io import setting
 from train.templates.budget import candidates, template_chamfer, within_budget
 from train.templates.build import MATCH_NORMALS
 from train.templates.checks import closed_manifold_problems, part_combinations
@@ -53,12 +54,12 @@ class ModelBoxes:
 
 @dataclass(frozen=True)
 class UserSettings:
-    presence_threshold: float = 1.0  # share of models from which a part is required
-    min_presence: float = 0.0  # parts in fewer models are dropped
+    presence_threshold: float = setting(1.0, "share of models from which a part is required")
+    min_presence: float = setting(0.0, "parts in fewer models are dropped")
     snap_tol: float = 0.01
-    symmetry: str = "auto"  # auto | x | none
+    symmetry: str = setting("auto", "auto | x | none")
     mirror_tol: float = MIRROR_TOL
-    budget: int | None = None  # max patches (None: the full construction)
+    budget: int | None = setting(None, "max patches (None: the full construction)")
     hollow: dict[str, tuple[float, float]] = field(default_factory=dict)  # label -> (wall, bottom)
     part_groups: dict[str, list[str]] = field(default_factory=dict)
     seed: int = 0
