@@ -9,9 +9,9 @@ import torch
 
 from pipeline.core.normalize import unit_sphere_transform
 from pipeline.shapes import CATEGORIES, generate
-from train.templates.checks import closed_manifold_problems, self_intersections
-from train.templates.from_cuboids import normalize_boxes, template_from_boxes
-from train.templates.part_boxes import category_boxes
+from train.templates.authoring.checks import closed_manifold_problems, self_intersections
+from train.templates.authoring.from_cuboids import normalize_boxes, template_from_boxes
+from train.templates.authoring.part_boxes import category_boxes
 
 
 def main(repeats: int = 3) -> None:

@@ -44,7 +44,7 @@ TRAIN_LEVELS = {
     "train.sketch_input": 0,
     "train.geometry": 1,
     "train.export": 2,  # CAD files and mesh checks of patch arrays
-    "train.templates": 3,
+    "train.templates": 3,  # the runtime format; train.templates.authoring builds templates offline
     "train.losses": 4,
     "train.metrics": 5,
     "train.model": 5,
@@ -171,3 +171,17 @@ def test_package_arrows_point_one_way():
     both = sorted((a, b) for a in graph for b in graph[a] if a < b and a in graph.get(b, set()))
     assert both == [], f"packages importing each other: {both}"
     assert graph["pipeline"] == set()  # the stages before and after drawing need no drawing code
+
+
+def test_training_and_export_never_import_template_authoring():
+    """Only the templates' own command line (and tests, bench) build templates; everything that
+    trains, evaluates or exports loads a finished one."""
+    allowed = ("train.templates.authoring", "train.templates.__main__")
+    bad = [
+        f"{path.relative_to(ROOT)}:{line} imports {target}"
+        for path in project_files()
+        if module_name(path).startswith("train") and not module_name(path).startswith(allowed)
+        for line, target in imported_modules(path)
+        if target.startswith("train.templates.authoring")
+    ]
+    assert bad == []

@@ -87,7 +87,7 @@ def _map(folder: Path, text: str, name: str = "map.yaml") -> Path:
 
 
 def test_templates_read_parts_with_the_pipelines_reader() -> None:
-    from train.templates import mesh_boxes
+    from train.templates.authoring import mesh_boxes
 
     assert mesh_boxes.read_segmentation is segmentation.read_segmentation
     assert mesh_boxes.map_name is part_names.map_name

@@ -5,21 +5,26 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from train.templates.build import DATA_DIR
-from train.templates.checks import closed_manifold_problems, euler_characteristic, junction_errors, self_intersections
-from train.templates.from_cuboids import TemplateSettings, template_from_boxes
-from train.templates.lattice import (
+from train.templates.authoring.build import DATA_DIR
+from train.templates.authoring.checks import (
+    closed_manifold_problems,
+    euler_characteristic,
+    junction_errors,
+    self_intersections,
+)
+from train.templates.authoring.from_cuboids import TemplateSettings, template_from_boxes
+from train.templates.authoring.lattice import (
     Box,
     boundary_quads,
     build_lattice,
     edge_use_counts,
 )
-from train.templates.lattice import (
+from train.templates.authoring.lattice import (
     euler_characteristic as quad_euler,
 )
-from train.templates.median import chamfer_matrix, median_index
-from train.templates.merge import merge_quads, rects_from_quads
-from train.templates.part_boxes import BOTTOM, WALL, handle_loop, hollow_box
+from train.templates.authoring.median import chamfer_matrix, median_index
+from train.templates.authoring.merge import merge_quads, rects_from_quads
+from train.templates.authoring.part_boxes import BOTTOM, WALL, handle_loop, hollow_box
 from train.templates.template import JunctionPoint, load_template_file
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
@@ -120,7 +125,7 @@ def test_self_intersection_check_detects_crossing_patches():
     boxes = [B("a", [-1.5, -0.5, -0.5], [-0.5, 0.5, 0.5]), B("b", [0.5, -0.3, -0.3], [1.1, 0.3, 0.3])]
     tpl = template_from_boxes(boxes, "two", TemplateSettings(snap_tol=1e-3, symmetric=False))
     assert self_intersections(tpl) == []
-    from train.templates.checks import point_positions
+    from train.templates.authoring.checks import point_positions
     from train.templates.template import FreePoint, Template
 
     pos = point_positions(tpl)
@@ -168,7 +173,7 @@ def test_median_picks_the_central_model():
 
 @pytest.mark.slow
 def test_build_is_deterministic(tmp_path):
-    from train.templates.build import BuildSettings, build_all
+    from train.templates.authoring.build import BuildSettings, build_all
 
     a = build_all(["knife"], tmp_path / "a", BuildSettings(n_models=4), spheres=False)
     build_all(["knife"], tmp_path / "b", BuildSettings(n_models=4), spheres=False)
@@ -183,7 +188,7 @@ def _combination_problems(tpl, alpha=4.0):
 
     from train.export.obj import edge_report
     from train.export.quadmesh import quad_mesh
-    from train.templates.checks import part_combinations
+    from train.templates.authoring.checks import part_combinations
 
     patches = tpl.patches_from_params(tpl.initial_params(torch.float64)[None])[0].numpy()
     out = []
@@ -231,13 +236,13 @@ def test_every_part_combination_of_a_shipped_template_is_closed(category):
 
 
 def test_patch_budget_picks_a_closed_template_within_the_budget():
-    from train.templates.budget import candidates, pareto, template_chamfer, within_budget
+    from train.templates.authoring.budget import candidates, pareto, template_chamfer, within_budget
 
     boxes = mug_boxes() + [B("rim", [-0.55, 0.45, -0.55], [0.55, 0.5, 0.55])]
     settings = TemplateSettings(snap_tol=1e-3)
     full = template_from_boxes(boxes, "mug", settings)
-    from train.templates.checks import conforming_mesh
-    from train.templates.median import sample_surface
+    from train.templates.authoring.checks import conforming_mesh
+    from train.templates.authoring.median import sample_surface
 
     v, f, _ = conforming_mesh(full)
     target = sample_surface(v, f, 1500, np.random.default_rng(0))
@@ -259,7 +264,7 @@ def test_patch_budget_picks_a_closed_template_within_the_budget():
 
 
 def test_coarsening_drops_only_small_optional_parts():
-    from train.templates.budget import Coarsening, coarsen_boxes
+    from train.templates.authoring.budget import Coarsening, coarsen_boxes
 
     boxes = [
         B("body", [0, 0, 0], [4, 1, 1]),

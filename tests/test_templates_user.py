@@ -10,12 +10,12 @@ import trimesh
 
 from pipeline.sources.part_names import map_name, normalize_name
 from pipeline.sources.segmentation import read_segmentation
-from train.templates.checks import conforming_mesh, part_combinations
-from train.templates.cuboid_file import CuboidFileError, file_models, read_cuboid_file
-from train.templates.lattice import Box
-from train.templates.mesh_boxes import PartSettings, merge_coincident, model_boxes, part_boxes, source_models
-from train.templates.symmetry import mirror_pairs
-from train.templates.user import TemplateInputError, UserSettings, build_user_template
+from train.templates.authoring.checks import conforming_mesh, part_combinations
+from train.templates.authoring.cuboid_file import CuboidFileError, file_models, read_cuboid_file
+from train.templates.authoring.lattice import Box
+from train.templates.authoring.mesh_boxes import PartSettings, merge_coincident, model_boxes, part_boxes, source_models
+from train.templates.authoring.symmetry import mirror_pairs
+from train.templates.authoring.user import TemplateInputError, UserSettings, build_user_template
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "train" / "templates" / "examples" / "chair.yaml"
 

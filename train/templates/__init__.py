@@ -1,7 +1,7 @@
 """Patch templates: the Template model and its file format (template.py), built-in spheres (sphere.py), and a resolver.
 
 Category templates are JSON files in train/templates/data/<category>.json (built by
-train/templates/build*); templates users build for their own categories go to ./templates/ (the
+train/templates/authoring/); templates users build for their own categories go to ./templates/ (the
 working folder's). ``load_template`` accepts "sphere24", "sphere54", a category name (shipped,
 then ./templates/<name>.json), or a path to a template file.
 """

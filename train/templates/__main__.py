@@ -7,10 +7,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from train.templates.budget import PAPER_PATCHES, SHIPPED_PATCHES
-from train.templates.build import DATA_DIR, BuildSettings, build_all, size_table
-from train.templates.from_cuboids import TemplateSettings
-from train.templates.user_cli import add_user_arguments, run_user_build
+from train.templates.authoring.budget import PAPER_PATCHES, SHIPPED_PATCHES
+from train.templates.authoring.build import DATA_DIR, BuildSettings, build_all, size_table
+from train.templates.authoring.from_cuboids import TemplateSettings
+from train.templates.authoring.user_cli import add_user_arguments, run_user_build
 
 USER_DIR = Path("templates")  # relative to where the command runs: never the installed package
 
@@ -22,7 +22,7 @@ BUILD_HELP = """Build category templates from one of three inputs:
                                  PLY face labels), else a <model>.pts + <model>.seg label file beside the mesh
                                  (ShapeNet-part), else connected components
   --cuboids FILE                 a YAML/JSON cuboid file written by hand or exported from CAD
-                                 (format: train/templates/cuboid_file.py, docs/templates.md)
+                                 (format: train/templates/authoring/cuboid_file.py, docs/templates.md)
 
 Writes <out>/<name>.json, .png and (user inputs) .report.txt; --out defaults to ./templates/ (a user
 folder: train fit --template templates/NAME.json, or --template NAME run from this folder).

@@ -28,9 +28,9 @@ from pipeline.core.settings_io import setting
 from pipeline.sources.mesh_io import load_mesh
 from pipeline.sources.part_names import map_name
 from pipeline.sources.segmentation import RawPart, read_segmentation
-from train.templates.lattice import Box
-from train.templates.median import sample_surface
-from train.templates.user import ModelBoxes, TemplateInputError
+from train.templates.authoring.lattice import Box
+from train.templates.authoring.median import sample_surface
+from train.templates.authoring.user import ModelBoxes, TemplateInputError
 
 COMPONENT_LABEL = "part"
 

@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from train.templates.lattice import Box
+from train.templates.authoring.lattice import Box
 
 MIRROR_TOL = 0.03  # normalized units (radius 1): how far a box may sit from its partner's mirror image
 

@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from train.templates.lattice import Box
+from train.templates.authoring.lattice import Box
 
 if TYPE_CHECKING:
-    from train.templates.user import ModelBoxes
+    from train.templates.authoring.user import ModelBoxes
 
 TOP_KEYS = {"format", "version", "category", "symmetry", "hollow", "part_groups", "cuboids", "models"}
 MODEL_KEYS = {"id", "cuboids"}
@@ -275,9 +275,9 @@ def _centre_x(boxes: list[Box]) -> float:
 def file_models(cf: CuboidFile, n_points: int = 2048, seed: int = 0) -> list[ModelBoxes]:
     """The file's models in the normalized frame, with samples of their box unions (for the median)."""
     from pipeline.core.seeding import rng_for
-    from train.templates.box_surface import box_union_samples
-    from train.templates.from_cuboids import box_normalization, normalize_boxes
-    from train.templates.user import ModelBoxes
+    from train.templates.authoring.box_surface import box_union_samples
+    from train.templates.authoring.from_cuboids import box_normalization, normalize_boxes
+    from train.templates.authoring.user import ModelBoxes
 
     out = []
     for m in cf.models:

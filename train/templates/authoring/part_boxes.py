@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.core.schema import part_family as base_label
-from train.templates.lattice import Box, CuboidLike
+from train.templates.authoring.lattice import Box, CuboidLike
 
 WALL = 0.12  # cup wall thickness, fraction of the cup's half-width
 BOTTOM = 0.12  # cup bottom thickness, fraction of its height

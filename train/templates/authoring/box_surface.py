@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from train.templates.lattice import CuboidLike
+from train.templates.authoring.lattice import CuboidLike
 
 
 def box_union_samples(boxes: Sequence[CuboidLike], n: int, rng: np.random.Generator) -> np.ndarray:

@@ -22,10 +22,10 @@ from typing import Sequence
 
 import numpy as np
 
-from train.templates.checks import conforming_mesh, surface_components
-from train.templates.from_cuboids import TemplateSettings, template_from_boxes
-from train.templates.lattice import Box
-from train.templates.median import chamfer, sample_surface
+from train.templates.authoring.checks import conforming_mesh, surface_components
+from train.templates.authoring.from_cuboids import TemplateSettings, template_from_boxes
+from train.templates.authoring.lattice import Box
+from train.templates.authoring.median import chamfer, sample_surface
 from train.templates.template import Template
 
 # Patch counts of the paper's category templates (Smirnov et al. 2021, supplement); bathtub and

@@ -21,8 +21,8 @@ import numpy as np
 
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.settings_io import setting
-from train.templates.lattice import Box, CuboidLike, Lattice, boundary_quads, build_lattice, mirrored_boxes
-from train.templates.merge import PatchSet, Rect, _rect_key, merge_quads
+from train.templates.authoring.lattice import Box, CuboidLike, Lattice, boundary_quads, build_lattice, mirrored_boxes
+from train.templates.authoring.merge import PatchSet, Rect, _rect_key, merge_quads
 from train.templates.template import Curve, FreePoint, JunctionPoint, Patch, Template
 
 

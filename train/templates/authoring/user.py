@@ -26,14 +26,14 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.core.settings_io import setting
-from train.templates.budget import candidates, template_chamfer, within_budget
-from train.templates.build import MATCH_NORMALS
-from train.templates.checks import closed_manifold_problems, part_combinations
-from train.templates.from_cuboids import TemplateSettings, template_from_boxes
-from train.templates.lattice import Box
-from train.templates.median import chamfer_matrix
-from train.templates.part_boxes import hollow_box
-from train.templates.symmetry import MIRROR_TOL, mirror_pairs, symmetrize
+from train.templates.authoring.budget import candidates, template_chamfer, within_budget
+from train.templates.authoring.build import MATCH_NORMALS
+from train.templates.authoring.checks import closed_manifold_problems, part_combinations
+from train.templates.authoring.from_cuboids import TemplateSettings, template_from_boxes
+from train.templates.authoring.lattice import Box
+from train.templates.authoring.median import chamfer_matrix
+from train.templates.authoring.part_boxes import hollow_box
+from train.templates.authoring.symmetry import MIRROR_TOL, mirror_pairs, symmetrize
 from train.templates.template import Template
 
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from train.templates.symmetry import MIRROR_TOL
+from train.templates.authoring.symmetry import MIRROR_TOL
 
 
 def _hollow(text: str) -> tuple[str, tuple[float, float]]:
@@ -92,11 +92,11 @@ def add_user_arguments(b: argparse.ArgumentParser) -> None:
 def run_user_build(args: argparse.Namespace, out: Path, error: Callable[[str], None]) -> int:
     from pipeline.core.atomic import write_bytes
     from pipeline.sources.part_names import PartMapError, read_part_map
-    from train.templates.build import write_template_png
-    from train.templates.cuboid_file import CuboidFileError, file_models, read_cuboid_file
-    from train.templates.mesh_boxes import PartSettings, source_models
+    from train.templates.authoring.build import write_template_png
+    from train.templates.authoring.cuboid_file import CuboidFileError, file_models, read_cuboid_file
+    from train.templates.authoring.mesh_boxes import PartSettings, source_models
+    from train.templates.authoring.user import TemplateInputError, UserSettings, build_user_template
     from train.templates.template import save_template
-    from train.templates.user import TemplateInputError, UserSettings, build_user_template
 
     if (args.source is None) == (args.cuboids is None):
         error("give --source DIR --category NAME, or --cuboids FILE (not both)")

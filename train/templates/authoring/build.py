@@ -26,14 +26,21 @@ from pipeline.core.images import save_png
 from pipeline.core.normalize import apply_transform, unit_sphere_transform
 from pipeline.core.seeding import rng_for
 from pipeline.core.settings_io import setting
-from train.templates.budget import PAPER_PATCHES, Coarsening, candidates, pareto, template_chamfer, within_budget
-from train.templates.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
-from train.templates.median import chamfer_matrix, median_index, sample_surface
-from train.templates.part_boxes import HOLLOW, category_boxes
+from train.templates import DATA_DIR  # the shipped templates (train/templates/data)
+from train.templates.authoring.budget import (
+    PAPER_PATCHES,
+    Coarsening,
+    candidates,
+    pareto,
+    template_chamfer,
+    within_budget,
+)
+from train.templates.authoring.from_cuboids import TemplateSettings, normalize_boxes, template_from_boxes
+from train.templates.authoring.median import chamfer_matrix, median_index, sample_surface
+from train.templates.authoring.part_boxes import HOLLOW, category_boxes
 from train.templates.render import render_template
 from train.templates.template import Template, save_template
 
-DATA_DIR = Path(__file__).resolve().parent / "data"
 # The paper's regularizers per category (§3.3): template normals wherever a category template
 # exists, symmetry for airplanes and cars (only their templates declare a symmetry plane; every
 # template is still built mirror-symmetric).
