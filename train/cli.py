@@ -22,7 +22,7 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     from train.fit import FitSettings
     from train.recipes import RECIPES, describe
 
-    add_arguments(p, FitSettings, skip=TEMPLATE_DEFAULTS)  # one flag per setting, help from the field
+    add_arguments(p, FitSettings, skip=OWN_FLAGS)  # one flag per setting, help from the field
     for action in p._actions:  # a recipe names the category and the template
         if action.dest in RECIPE_NAMES:
             action.required, action.default = False, None
@@ -38,8 +38,8 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true")
 
 
-# Training settings whose defaults come from the template file and its flags from the loss table.
-TEMPLATE_DEFAULTS = ("weights",)
+# FitSettings fields with flags of their own: the loss weights' --w-<term> / --no-<term> (the term table).
+OWN_FLAGS = ("weights",)
 # Required unless a recipe gives them.
 RECIPE_NAMES = ("category", "template")
 
@@ -72,7 +72,7 @@ def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSet
 
     tpl = load_template(a.template)
     return with_template_defaults(
-        from_args(FitSettings, a, skip=TEMPLATE_DEFAULTS, weights=weights_from_flags(a, tpl.regularizers))
+        from_args(FitSettings, a, skip=OWN_FLAGS, weights=weights_from_flags(a, tpl.regularizers))
     )
 
 
@@ -82,7 +82,7 @@ def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
     from train.recipes import recipe
 
     base = recipe(a.recipe, a.dataset, a.out)
-    fields = {f.name for f in dataclasses.fields(FitSettings)} - set(TEMPLATE_DEFAULTS)
+    fields = {f.name for f in dataclasses.fields(FitSettings)} - set(OWN_FLAGS)
     changes = {k: getattr(a, k) for k in given & fields}
     weights = weight_overrides(a)
     if weights:

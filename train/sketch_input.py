@@ -16,7 +16,6 @@ to the training median. :class:`Framing` holds what was measured on the shards
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -185,14 +184,6 @@ def normalize_sketch(data: bytes, size: int, framing: Framing = Framing(), name:
         "darkness_gain": round(gain, 4),
     }
     return Normalized(image, report)
-
-
-def normalize_file(path: str | Path, size: int, framing: Framing = Framing()) -> Normalized:
-    """:func:`normalize_sketch` of a file, with errors naming it."""
-    p = Path(path)
-    if not p.is_file():
-        raise SketchError(f"{p}: no such file" if not p.exists() else f"{p}: not a file")
-    return normalize_sketch(p.read_bytes(), size, framing, name=str(p))
 
 
 def image_stats(img: np.ndarray) -> dict[str, float]:
