@@ -42,39 +42,39 @@ class VectorizeSettings:
 class AugmentSettings:
     """How each rendered view becomes K pencil-sketch variants."""
 
-    variants: int = 2
-    out_size: int = 128
+    variants: int = setting(2, "pencil variants drawn per view")
+    out_size: int = setting(128, "sketch size in pixels (square)")
     # One width per variant, in rotation (variant k uses widths[k % len]); SynDraw: 2.5 ± 0.75.
-    widths: tuple[float, ...] = (1.5, 2.5, 3.5)
+    widths: tuple[float, ...] = setting((1.5, 2.5, 3.5), "stroke widths (reference px), one per variant in rotation")
     vectorize: VectorizeSettings = dataclasses.field(default_factory=VectorizeSettings)
     resample_spacing: float = setting(1.0, "strokes are resampled (Catmull-Rom) at this spacing")
 
     # Splitting (SynDraw / peers: p ≈ 0.2–0.5, 1–3 points, 0–4 px gaps).
-    split_prob: float = 0.35
-    split_max_points: int = 3
-    split_gap: tuple[float, float] = (0.5, 4.0)
+    split_prob: float = setting(0.35, "chance a stroke is split")
+    split_max_points: int = setting(3, "at most this many split points per stroke")
+    split_gap: tuple[float, float] = setting((0.5, 4.0), "gap range at a split (px)")
     split_min_piece: float = setting(6.0, "never leave a piece shorter than this")
     # Truncation of ends (shorten each end by up to this fraction of the stroke / px).
-    truncate_prob: float = 0.5
-    truncate_max_fraction: float = 0.12
-    truncate_max_px: float = 6.0
+    truncate_prob: float = setting(0.5, "chance a stroke end is shortened")
+    truncate_max_fraction: float = setting(0.12, "at most this fraction of the stroke per end")
+    truncate_max_px: float = setting(6.0, "... and at most this many px")
     # Extension / overshoot of ends along their tangent.
-    extend_prob: float = 0.3
-    extend_max_px: float = 4.0
+    extend_prob: float = setting(0.3, "chance a stroke end overshoots along its tangent")
+    extend_max_px: float = setting(4.0, "overshoot length limit (px)")
     # Smooth lateral wobble: amplitude (px) and wavelength (px) of the offset along the normal.
-    wobble_amplitude: float = 0.8
-    wobble_wavelength: float = 40.0
+    wobble_amplitude: float = setting(0.8, "smooth sideways wobble amplitude (px)")
+    wobble_wavelength: float = setting(40.0, "wobble wavelength along the stroke (px)")
     # Per-stroke similarity jitter (peers: rotation ≤ 2.5°, scale 0.9–1.1).
-    jitter_rotation_deg: float = 1.5
-    jitter_scale: float = 0.03
+    jitter_rotation_deg: float = setting(1.5, "per-stroke rotation jitter (degrees)")
+    jitter_scale: float = setting(0.03, "per-stroke relative scale jitter")
     # Overdrawn duplicate strokes (peers: 1–2 copies).
-    overdraw_prob: float = 0.15
-    overdraw_max_copies: int = 2
-    overdraw_offset: float = 1.2
+    overdraw_prob: float = setting(0.15, "chance a stroke is drawn again beside itself")
+    overdraw_max_copies: int = setting(2, "at most this many extra copies")
+    overdraw_offset: float = setting(1.2, "copies lie up to this far from the stroke (px)")
     # Dropping strokes (peers: drop ≤ 0.1): short strokes go with drop_short_prob.
-    drop_short_length: float = 8.0
-    drop_short_prob: float = 0.3
-    drop_prob: float = 0.02
+    drop_short_length: float = setting(8.0, "strokes shorter than this (px) count as short")
+    drop_short_prob: float = setting(0.3, "chance a short stroke is dropped")
+    drop_prob: float = setting(0.02, "chance any other stroke is dropped")
     drop_keep_fraction: float = setting(0.5, "dropped strokes return (longest first) to keep this share of ink")
 
     # Pencil look. Each variant takes the next of ``tones`` and ``shading`` in rotation (as with
@@ -89,7 +89,7 @@ class AugmentSettings:
     pressure_noise: float = setting(0.15, "slow relative width variation")
     grain: float = setting(0.45, "0 = solid graphite, 1 = only paper tooth")
     paper_mottle: float = setting(0.02, "low-frequency paper brightness variation")
-    supersample: int = 4
+    supersample: int = setting(4, "raster supersampling factor (anti-aliasing)")
 
     def __post_init__(self) -> None:
         # Overrides arrive as JSON through pipeline.core.settings_io.from_dict, which makes lists

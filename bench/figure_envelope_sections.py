@@ -4,7 +4,7 @@
 
 For a few procedural models (the bench corpus of ``bench_pipeline.py``) it cuts each surface with
 one plane across a thin part (knife blade, mug wall, airplane wing, guitar body) and draws the
-cuts: source in black, the envelope at resolution 5000 (the default before stop 22) in red, the
+cuts: source in black, the envelope at resolution 5000 (the earlier default) in red, the
 envelope at resolution 2500 pulled back (``pull_to_source`` 0.9, the default since) in blue. The
 training targets are sampled on the envelope, so the gap between black and colour is how much
 thicker the network's targets are than the drawn object.

@@ -1,4 +1,4 @@
-"""Does the encoder learn to read shape from drawings it has not seen? (BENCHMARKS.md, stop 18)
+"""Does the encoder learn to read shape from drawings it has not seen?
 
 Trains the network's encoder (ResNet-18 at ``--width``) and a linear head, nothing else, to predict
 a shape code from one drawing: the ``--dims`` leading principal components, whitened over the

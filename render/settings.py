@@ -37,21 +37,24 @@ class RenderSettings:
     backend: str = setting(
         "freestyle", '"embree": visible feature edges by ray casting, no Blender (render.edge_lines)'
     )
-    views: int = 4
-    image_size: int = 256
-    elevation_range: tuple[float, float] = (-10.0, 40.0)
-    rig: str = "representative"
+    views: int = setting(4, "views drawn per model")
+    image_size: int = setting(256, "drawing size in pixels (square)")
+    elevation_range: tuple[float, float] = setting((-10.0, 40.0), "camera elevations in degrees, drawn uniformly")
+    rig: str = setting("representative", "camera rig: " + ", ".join(RIGS))
     min_view_extent: float = setting(0.35, "representative rig: a view's silhouette spans at least this of the frame")
     view_extent_fraction: float = setting(0.6, "... and at least this share of the widest candidate's")
     view_candidates: int = setting(32, "... out of this many seeded draws per model")
-    orthographic: bool = False
+    orthographic: bool = setting(False, "orthographic cameras instead of perspective")
     lens_mm: float = setting(50.0, "on a 36 mm sensor: 39.6° field of view")
-    sensor_mm: float = 36.0
+    sensor_mm: float = setting(36.0, "sensor width; with lens_mm, the field of view")
     margin: float = setting(1.08, "the unit sphere fills 1/margin of the half-frame")
     crease_angle_deg: float = setting(134.43, "Blender's default; dihedral angles below it are creases")
     # what is drawn: the paper's occluding contours (silhouette, contours) and sharp edges
     # (crease), plus borders of open surfaces; visible lines only
-    edge_types: tuple[str, ...] = ("silhouette", "border", "crease", "contour", "external_contour")
+    edge_types: tuple[str, ...] = setting(
+        ("silhouette", "border", "crease", "contour", "external_contour"),
+        "Freestyle edge types drawn: " + ", ".join(EDGE_TYPES),
+    )
     smooth_shading: bool = setting(True, "smooth silhouettes on curved parts; edges at creases stay sharp")
     line_thickness: float = setting(1.5, "pixels")
     min_stroke_px: float = setting(0.0, "drop strokes shorter than this; >0 also opens gaps in noisy outlines")
@@ -59,7 +62,7 @@ class RenderSettings:
     samples: int = setting(1, "Cycles samples; lines are anti-aliased by Freestyle itself")
     threads: int = setting(1, "Cycles render threads and the size of Blender's TBB pool (0: all CPUs)")
     timeout_s: float = setting(60.0, "per model; a batch gets startup_timeout_s + n * timeout_s")
-    startup_timeout_s: float = 60.0
+    startup_timeout_s: float = setting(60.0, "a render batch's allowance for starting Blender")
 
     def __post_init__(self) -> None:
         if self.backend not in BACKENDS:

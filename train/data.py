@@ -38,11 +38,11 @@ class DataSettings:
     max_views: int = setting(4, "training draws 1..max_views views per sample")
     # training also returns "pair_images" (1, S, S): another drawing of the same model (another
     # view or pencil variant than the first one drawn), for the contrastive term
-    pair: bool = False
+    pair: bool = setting(False, "also return another drawing of the same model (the contrastive term)")
     eval_views: int = setting(1, "evaluation uses views 0..eval_views-1, variant 0")
-    n_points: int = 7000
-    image_size: int = 128
-    shuffle_buffer: int = 64
+    n_points: int = setting(7000, "target surface points per shape")
+    image_size: int = setting(128, "sketches are resized to this square size")
+    shuffle_buffer: int = setting(64, "samples held for shuffling the stream")
     jitter: Jitter = Jitter()
 
     def __post_init__(self) -> None:

@@ -51,11 +51,11 @@ class FitSettings:
     """One training run; ``python -m train fit`` has a flag for each field but ``weights``."""
 
     dataset: str = setting(help="dataset folder holding <category>/<split>-NNNNN.tar")
-    category: str = setting()
+    category: str = setting(help="the category inside --dataset to train on")
     template: str = setting(help="sphere24, sphere54, a category name, or a template file")
     out: str = setting(help="run folder (re-using it resumes the run)")
-    steps: int = 1000
-    batch_size: int = 8
+    steps: int = setting(1000, "optimizer steps in all (a resumed run continues to this count)")
+    batch_size: int = setting(8, "samples per step (per rank under torchrun)")
     lr: float = setting(1e-4, "Adam's learning rate (the peak one under --lr-schedule cosine)")
     lr_schedule: str = setting(
         "constant",
@@ -63,18 +63,18 @@ class FitSettings:
         "decay to 0 at --steps (the schedule follows --steps, so resume with the same --steps)",
     )
     warmup_steps: int = setting(0, "steps of linear warm-up under --lr-schedule cosine (unused when constant)")
-    seed: int = 0
+    seed: int = setting(0, "seeds the network's initial weights, the data order and the augmentation")
     workers: int = setting(2, "data loader worker processes per rank")
     max_views: int = setting(DataSettings.max_views, "training draws 1..max_views views per sample")
     n_points: int = setting(DataSettings.n_points, "target / patch sample points per shape", flag="points")
-    image_size: int = DataSettings.image_size
+    image_size: int = setting(DataSettings.image_size, "sketches are resized to this square size")
     encoder_width: int = setting(
         64,
         "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
-        "ResNet-18 as in the paper; 32: about a third of its CPU time, see BENCHMARKS.md)",
+        "ResNet-18 as in the paper; 32: about a third of its CPU time)",
     )
-    checkpoint_every: int = 500
-    log_every: int = 10
+    checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
+    log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
     device: str | None = setting(None, "default: cuda when present, else cpu")
     match_normals: float | None = setting(
@@ -86,17 +86,17 @@ class FitSettings:
     contrast: float = setting(
         0.0,
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
-        "encode alike; not in the paper; 0: off; BENCHMARKS.md)",
+        "encode alike; not in the paper; 0: off)",
     )
     clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
-        "log.csv's grad_norm column shows the norms a run sees; BENCHMARKS.md)",
+        "log.csv's grad_norm column shows the norms a run sees)",
     )
     ema: float = setting(
         0.0,
         "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
-        "validate, keep and hand out the average instead of the training weights (0: off; BENCHMARKS.md)",
+        "validate, keep and hand out the average instead of the training weights (0: off)",
     )
     weights: LossWeights = LossWeights()
 
@@ -246,7 +246,7 @@ class TrainedRun:
 
 # Settings removed since, with the value that meant "off": a checkpoint saved with that value
 # loads as if it never had the setting; any other value still fails, naming it.
-_REMOVED_SETTINGS = {"encoder_lr": None}  # stop 15's separate encoder learning rate
+_REMOVED_SETTINGS = {"encoder_lr": None}  # a separate encoder learning rate, tried and removed
 
 
 def checkpoint_settings(ckpt: dict) -> FitSettings:

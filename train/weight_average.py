@@ -6,7 +6,7 @@ every averaged floating-point tensor (parameters and BatchNorm statistics) a fra
 ``1 - d`` towards the training network's and copies integer buffers (BatchNorm's step
 counters). The decay warms up, ``d = min(decay, (1 + step) / (10 + step))``: with a fixed 0.999
 from the first step the random initial weights keep 0.999^step of the average (27 % at step
-1,300), and a knife run's average validated far worse than its training weights (stop 21).
+1,300), and a knife run's average validated far worse than its training weights.
 """
 
 from __future__ import annotations

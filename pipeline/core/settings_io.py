@@ -196,17 +196,30 @@ def cli_fields(cls: type, skip: tuple[str, ...] = ()) -> list[dataclasses.Field]
     return [f for f in dataclasses.fields(cls) if f.name not in skip and not dataclasses.is_dataclass(types_[f.name])]
 
 
-def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:
+def add_arguments(
+    parser: argparse.ArgumentParser,
+    cls: type,
+    skip: tuple[str, ...] = (),
+    optional: tuple[str, ...] = (),
+    defaults: bool = True,
+) -> None:
     """One ``--flag`` per field of ``cls`` (not ``skip``), typed, defaulted and explained by the
-    field. Booleans are switches (``--x`` / ``--no-x``), tuples take several values."""
+    field. Booleans are switches (``--x`` / ``--no-x``), tuples take several values. Required
+    fields named in ``optional`` default to None (something else, e.g. a recipe, may give them);
+    with ``defaults=False`` a flag not given is left out of the namespace."""
     types_ = field_types(cls)
     for f in cli_fields(cls, skip):
         tp, default = types_[f.name], field_default(f)
         tp = _optional_inner(tp) or tp
         flag = "--" + flag_name(f).replace("_", "-")
         kw: dict[str, Any] = {"dest": f.name, "help": field_help(cls, f) or None}
-        if default is dataclasses.MISSING:
-            kw["required"] = True
+        if not defaults:
+            kw["default"] = argparse.SUPPRESS
+        elif default is dataclasses.MISSING:
+            if f.name in optional:
+                kw["default"] = None
+            else:
+                kw["required"] = True
         else:
             kw["default"] = default
             if tp is not bool and default not in (None, "", ()):
@@ -220,6 +233,14 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, .
         else:
             kw["type"] = tp if tp in (int, float, Path) else str
         parser.add_argument(flag, **kw)
+
+
+def given_fields(cls: type, argv: list[str], skip: tuple[str, ...] = ()) -> set[str]:
+    """The fields of ``cls`` whose flags appear in ``argv``: what the user set, not a default."""
+    probe = argparse.ArgumentParser(add_help=False)
+    add_arguments(probe, cls, skip, defaults=False)
+    known, _ = probe.parse_known_args(argv)
+    return set(vars(known))
 
 
 def from_args(cls: type[T], args: argparse.Namespace, skip: tuple[str, ...] = (), **extra: Any) -> T:

@@ -70,10 +70,12 @@ _BLOCK = tarfile.BLOCKSIZE
 class ShardSettings:
     """How samples are packed. Part of the shard stage key."""
 
-    max_samples_per_shard: int = 256
-    max_bytes_per_shard: int = 512 * 2**20
+    max_samples_per_shard: int = setting(256, "a shard holds at most this many samples")
+    max_bytes_per_shard: int = setting(512 * 2**20, "... and at most about this many bytes")
     points: int = setting(16384, "points per sample; the prepared samples are subsampled when larger")
-    split_fractions: tuple[float, float, float] = DEFAULT_FRACTIONS
+    split_fractions: tuple[float, float, float] = setting(
+        DEFAULT_FRACTIONS, "train, val and test shares of each category"
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -45,7 +45,7 @@ from train.templates.template import Template, save_template
 # exists, symmetry for airplanes and cars (only their templates declare a symmetry plane; every
 # template is still built mirror-symmetric).
 SYMMETRY_PLANE = ("airplane", "car")
-MATCH_NORMALS = 0.1  # λ measured on the bathtub and mug (stop 14)
+MATCH_NORMALS = 0.1  # λ measured on the bathtub and mug
 # Patch labels whose Chamfer/normal terms are computed apart from the rest (the paper: car wheels).
 PART_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "car": (("wheels", ("wheel_front", "wheel_rear")),),
@@ -59,7 +59,7 @@ def category_regularizers(category: str) -> dict[str, float]:
 def category_match_normals(category: str) -> float:
     """Normal-aware matching for the categories built with hollowed parts: their walls' two sides
     lie 0.02-0.05 apart and face opposite ways, so nearest-point matching pairs a patch with the
-    wrong side (BENCHMARKS.md, stop 14: bathtub -20 % -> -26 % vs its template, mug -34 % -> -36 %)."""
+    wrong side (measured: bathtub -20 % -> -26 % vs its template, mug -34 % -> -36 %)."""
     return MATCH_NORMALS if category in HOLLOW else 0.0
 
 
