@@ -3,13 +3,32 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
 from pipeline.core.schema import MANIFEST
+from pipeline.core.settings_io import add_arguments, from_args, setting
 
 
-def _verify(args: argparse.Namespace) -> int:
+@dataclasses.dataclass(frozen=True)
+class VerifySettings:
+    dataset_dir: str = setting(help="the dataset folder (holds manifest.json)", positional=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class PreviewSettings:
+    dataset_dir: str = setting(help="the dataset folder (holds manifest.json)", positional=True)
+    out: str = setting(help="folder for <category>.png (odd names: a safe slug + hash)")
+    max_models: int = setting(16, "rows (models) per sheet")
+    categories: tuple[str, ...] = setting((), "only these categories (default: all)")
+
+    def __post_init__(self) -> None:
+        if self.max_models < 1:
+            raise ValueError(f"max_models must be >= 1, got {self.max_models}")
+
+
+def _verify(args: VerifySettings) -> int:
     from pipeline.dataset.verify import verify_dataset
 
     problems = verify_dataset(Path(args.dataset_dir))
@@ -22,11 +41,13 @@ def _verify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _preview(args: argparse.Namespace) -> int:
+def _preview(args: PreviewSettings) -> int:
     from pipeline.sheets.dataset import write_previews
 
     refused: list[str] = []
-    for path in write_previews(Path(args.dataset_dir), Path(args.out), args.max_models, args.categories, refused):
+    for path in write_previews(
+        Path(args.dataset_dir), Path(args.out), args.max_models, list(args.categories) or None, refused
+    ):
         print(path)
     for line in refused:  # a manifest naming paths outside the dataset: nothing written for it
         print(f"REFUSED {line}", file=sys.stderr)
@@ -36,17 +57,19 @@ def _preview(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    v = sub.add_parser("verify", help="re-check every shard against manifest.json; exit 1 on any mismatch")
-    v.add_argument("dataset_dir")
-    v.set_defaults(func=_verify)
-    p = sub.add_parser("preview", help="write a contact-sheet PNG per category from the shards")
-    p.add_argument("dataset_dir")
-    p.add_argument("--out", required=True, help="folder for <category>.png (odd names: a safe slug + hash)")
-    p.add_argument("--max-models", type=int, default=16, help="rows (models) per sheet")
-    p.add_argument("--categories", nargs="*", default=None, help="only these categories")
-    p.set_defaults(func=_preview)
+    commands = {
+        "verify": (VerifySettings, _verify, "re-check every shard against manifest.json; exit 1 on any mismatch"),
+        "preview": (PreviewSettings, _preview, "write a contact-sheet PNG per category from the shards"),
+    }
+    for name, (cls, _, help_) in commands.items():
+        add_arguments(sub.add_parser(name, help=help_), cls)
     args = parser.parse_args(argv)
-    return args.func(args)
+    cls, run, _ = commands[args.command]
+    try:
+        settings = from_args(cls, args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run(settings)
 
 
 if __name__ == "__main__":

@@ -9,11 +9,13 @@ on one line; Luigi's log goes to ``<work-dir>/luigi.log``; the end is a table pe
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
 import luigi
 
+from pipeline.core.settings_io import add_arguments, from_dict, setting
 from workflows import steps
 from workflows.console import Console
 from workflows.params import add_task_arguments
@@ -22,14 +24,26 @@ from workflows.validate import BuildParameterError
 from workflows.warm import warm_stage_code
 
 
+@dataclasses.dataclass(frozen=True)
+class RunSettings:
+    """What runs the build, beside what it builds (BuildDataset's parameters)."""
+
+    workers: int = setting(2, "Luigi worker processes")
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m workflows.make_dataset", description=__doc__)
     add_task_arguments(p, BuildDataset)  # the flags of `luigi ... BuildDataset`, made from its parameters
-    p.add_argument("--workers", type=int, default=2, help="Luigi worker processes")
+    add_arguments(p, RunSettings)
     a = vars(p.parse_args(argv))
-    workers = a.pop("workers")
-    if workers < 1:
-        print(f"error: --workers must be >= 1, got {workers}", file=sys.stderr)
+    try:
+        workers = from_dict(RunSettings, {"workers": a.pop("workers")}).workers
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
         task = BuildDataset(**a)

@@ -10,11 +10,14 @@ to someone else or others may write to it). See docs/distributed.md for several 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import ipaddress
 import os
 import stat
 import sys
 from pathlib import Path
+
+from pipeline.core.settings_io import add_arguments, from_args, setting
 
 LOOPBACK = "127.0.0.1"
 STATE_FILE = "state.pickle"
@@ -92,24 +95,26 @@ def luigid_argv(state_dir: Path, address: str, port: int, background: bool = Fal
     return argv
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m workflows.scheduler", description=__doc__.split("\n\n")[0])
-    p.add_argument(
-        "--address",
-        default=LOOPBACK,
-        help="interface to listen on (default 127.0.0.1: this machine only). Anything else must be "
-        "on a network where every host is trusted: luigid has no authentication",
+@dataclasses.dataclass(frozen=True)
+class SchedulerSettings:
+    address: str = setting(
+        LOOPBACK,
+        "interface to listen on (127.0.0.1: this machine only). Anything else must be on a network "
+        "where every host is trusted: luigid has no authentication",
     )
-    p.add_argument("--port", type=int, default=8082)
-    p.add_argument(
-        "--state-dir",
-        type=Path,
-        default=None,
-        help=f"folder for {STATE_FILE} and {LOG_DIR}/ (default: {default_state_dir()}); "
+    port: int = setting(8082, "port to listen on")
+    state_dir: Path | None = setting(
+        None,
+        f"folder for {STATE_FILE} and {LOG_DIR}/ (default: $XDG_STATE_HOME/sketch2patch/luigid, ~/.local/state/... when unset); "
         "created with mode 0700, refused when another user owns it or may write to it",
     )
-    p.add_argument("--background", action="store_true", help="daemonize (pid file in the state folder)")
-    a = p.parse_args(argv)
+    background: bool = setting(False, "daemonize (pid file in the state folder)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m workflows.scheduler", description=__doc__.split("\n\n")[0])
+    add_arguments(p, SchedulerSettings)
+    a = from_args(SchedulerSettings, p.parse_args(argv))
     try:
         state_dir = private_state_dir(a.state_dir or default_state_dir())
     except (UnsafeStateDir, OSError) as exc:

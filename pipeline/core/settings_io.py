@@ -167,9 +167,23 @@ def parse_json_object(text: str | dict | None) -> dict:
 # ---------------------------------------------------------------- command lines
 
 
-def setting(default: Any = dataclasses.MISSING, help: str = "", flag: str | None = None) -> Any:
-    """A settings field with its command-line help and, when it differs, its flag name."""
-    meta = {"help": help, **({"flag": flag} if flag else {})}
+def setting(
+    default: Any = dataclasses.MISSING,
+    help: str = "",
+    flag: str | None = None,
+    positional: bool = False,
+    choices: tuple | None = None,
+) -> Any:
+    """A settings field with its command-line help and, when it differs, its flag name; a
+    ``positional`` field is an argument without a flag; ``choices`` are shown and checked by the
+    command line (the class checks its values itself, for library callers too)."""
+    meta: dict[str, Any] = {"help": help}
+    if flag:
+        meta["flag"] = flag
+    if positional:
+        meta["positional"] = True
+    if choices is not None:
+        meta["choices"] = tuple(choices)
     return dataclasses.field(default=default, metadata=meta)
 
 
@@ -211,10 +225,20 @@ def add_arguments(
     for f in cli_fields(cls, skip):
         tp, default = types_[f.name], field_default(f)
         tp = _optional_inner(tp) or tp
-        flag = "--" + flag_name(f).replace("_", "-")
-        kw: dict[str, Any] = {"dest": f.name, "help": field_help(cls, f) or None}
+        positional = f.metadata.get("positional", False)
+        if positional and not defaults:
+            continue  # given_fields asks about flags only
+        flag = f.name if positional else "--" + flag_name(f).replace("_", "-")
+        kw: dict[str, Any] = {"help": field_help(cls, f) or None}
+        if not positional:
+            kw["dest"] = f.name
+        if "choices" in f.metadata:
+            kw["choices"] = f.metadata["choices"]
         if not defaults:
             kw["default"] = argparse.SUPPRESS
+        elif positional:
+            if default is not dataclasses.MISSING:
+                kw["default"], kw["nargs"] = default, "?"
         elif default is dataclasses.MISSING:
             if f.name in optional:
                 kw["default"] = None
@@ -229,7 +253,8 @@ def add_arguments(
         elif typing.get_origin(tp) is tuple:
             args = typing.get_args(tp)
             kw["type"] = args[0]
-            kw["nargs"] = "+" if len(args) == 2 and args[1] is Ellipsis else len(args)
+            many = "*" if default is not dataclasses.MISSING and default in ((), None) else "+"
+            kw["nargs"] = many if len(args) == 2 and args[1] is Ellipsis else len(args)
         else:
             kw["type"] = tp if tp in (int, float, Path) else str
         parser.add_argument(flag, **kw)

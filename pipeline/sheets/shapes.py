@@ -6,11 +6,13 @@ python -m pipeline.sheets.shapes --out sheets/shapes.png --per-category 6 --seed
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.core.images import contact_sheet, save_png
+from pipeline.core.settings_io import add_arguments, from_args, setting
 from pipeline.core.thumbnails import render_mesh
 from pipeline.shapes import CATEGORIES, generate
 
@@ -57,18 +59,23 @@ def build_sheet(
     return contact_sheet(images, labels, cols=per_category)
 
 
+@dataclasses.dataclass(frozen=True)
+class ShapesSheetSettings:
+    out: Path = setting(Path("sheets/shapes.png"), "PNG to write")
+    per_category: int = setting(6, "models per category (one row each category)")
+    seed: int = setting(0, "seeds the procedural generator")
+    size: int = setting(192, "thumbnail size in pixels")
+    categories: tuple[str, ...] = setting(CATEGORIES, "the categories drawn", choices=CATEGORIES)
+    defect_fraction: float = setting(0.25, "share of models given deliberate mesh defects")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=Path("sheets/shapes.png"))
-    ap.add_argument("--per-category", type=int, default=6)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--size", type=int, default=192, help="thumbnail size in pixels")
-    ap.add_argument("--categories", nargs="*", default=list(CATEGORIES))
-    ap.add_argument("--defect-fraction", type=float, default=0.25)
-    args = ap.parse_args(argv)
-    sheet = build_sheet(args.per_category, args.seed, args.size, args.categories, args.defect_fraction)
-    save_png(args.out, sheet)
-    print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]})")
+    add_arguments(ap, ShapesSheetSettings)
+    a = from_args(ShapesSheetSettings, ap.parse_args(argv))
+    sheet = build_sheet(a.per_category, a.seed, a.size, list(a.categories), a.defect_fraction)
+    save_png(a.out, sheet)
+    print(f"wrote {a.out} ({sheet.shape[1]}x{sheet.shape[0]})")
 
 
 if __name__ == "__main__":

@@ -10,12 +10,14 @@ trimmed), so it is a check of the export, not of the patches it was made from.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.core.errors import ModelError
 from pipeline.core.images import save_png
+from pipeline.core.settings_io import add_arguments, from_args, setting
 from pipeline.core.thumbnails import render_mesh
 
 # colour-blind-safe palette cycled over faces (Okabe–Ito, lightened for shading)
@@ -106,14 +108,19 @@ def render_cad(
     return np.concatenate(views, axis=1)
 
 
+@dataclasses.dataclass(frozen=True)
+class CadViewSettings:
+    file: str = setting(help="a .stp/.step or .igs/.iges file", positional=True)
+    out: str = setting(help="PNG to write")
+    size: int = setting(512, "pixels per view")
+    azimuth: tuple[float, ...] = setting((35.0,), "one view per azimuth (degrees)")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m train.export.cad_view", description=__doc__.split("\n\n")[0])
-    p.add_argument("file", help="a .stp/.step or .igs/.iges file")
-    p.add_argument("--out", required=True, help="PNG to write")
-    p.add_argument("--size", type=int, default=512, help="pixels per view")
-    p.add_argument("--azimuth", type=float, nargs="+", default=[35.0], help="one view per azimuth (degrees)")
-    a = p.parse_args(argv)
-    save_png(a.out, render_cad(a.file, a.size, tuple(a.azimuth)))
+    add_arguments(p, CadViewSettings)
+    a = from_args(CadViewSettings, p.parse_args(argv))
+    save_png(a.out, render_cad(a.file, a.size, a.azimuth))
     print(f"saved {a.out}")
     return 0
 

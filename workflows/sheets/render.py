@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from pipeline.core.atomic import read_json
 from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.records import model_dir, read_record
 from pipeline.core.schema import LINE_MESH_FILE, STROKES_FILE, VIEW_GLOB
+from pipeline.core.settings_io import add_arguments, from_args, setting
 from workflows.build_settings import BuildSettings
 
 TYPE_COLOURS = {"silhouette": (220, 30, 30), "border": (30, 120, 220), "crease": (20, 160, 60)}
@@ -105,27 +107,32 @@ def _print_progress(done: int, total: int, message: str) -> None:
     print(f"[{done}/{total}] {message}", file=sys.stderr, flush=True)
 
 
+@dataclasses.dataclass(frozen=True)
+class RenderSheetSettings:
+    stage_dir: Path | None = setting(None, "a render stage folder (render-<key>)")
+    work_dir: Path | None = setting(None, "work folder: newest render-* inside, or output of --procedural")
+    out: Path = setting(Path("sheets/renders.png"), "PNG to write")
+    per_category: int = setting(3, "models per category (one row each)")
+    max_views: int = setting(8, "views per row")
+    strokes: bool = setting(False, "overlay captured strokes coloured by type")
+    procedural: bool = setting(False, "make, prepare and render procedural models first")
+    categories: tuple[str, ...] = setting((), "with --procedural (default: all)")
+    seed: int = setting(0, "with --procedural: seeds the models")
+    views: int = setting(BuildSettings.views, "with --procedural: views per model")
+    image_size: int = setting(BuildSettings.image_size, "with --procedural: render size")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--stage-dir", type=Path, help="a render stage folder (render-<key>)")
-    ap.add_argument("--work-dir", type=Path, help="work folder: newest render-* inside, or output of --procedural")
-    ap.add_argument("--out", type=Path, default=Path("sheets/renders.png"))
-    ap.add_argument("--per-category", type=int, default=3)
-    ap.add_argument("--max-views", type=int, default=8)
-    ap.add_argument("--strokes", action="store_true", help="overlay captured strokes coloured by type")
-    ap.add_argument("--procedural", action="store_true", help="make, prepare and render procedural models first")
-    ap.add_argument("--categories", nargs="*", default=None, help="with --procedural (default: all)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--views", type=int, default=BuildSettings.views)
-    ap.add_argument("--image-size", type=int, default=BuildSettings.image_size)
-    args = ap.parse_args(argv)
+    add_arguments(ap, RenderSheetSettings)
+    args = from_args(RenderSheetSettings, ap.parse_args(argv))
 
     if args.procedural:
         if args.work_dir is None:
             ap.error("--procedural needs --work-dir")
         from pipeline.shapes import CATEGORIES
 
-        cats = args.categories or list(CATEGORIES)
+        cats = list(args.categories) or list(CATEGORIES)
         build = BuildSettings(
             work_dir=args.work_dir,
             models_per_category=args.per_category,
