@@ -117,6 +117,36 @@ def test_shapenet_groups_are_materials_its_points_files_are_parts(tmp_path: Path
     assert sorted({p.name for p in found[0]}) == ["seat", "seg2"]  # mapped; an unmapped id keeps its digits
 
 
+def _binary_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray | None) -> None:
+    """A little-endian binary PLY, with a ``label`` face property when given (what Blender and
+    most exporters write: trimesh reads each element as one structured array)."""
+    face_props = "property list uchar int vertex_indices\n" + ("property int label\n" if labels is not None else "")
+    head = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\n{face_props}end_header\n"
+    )
+    body = bytearray(np.asarray(vertices, "<f4").tobytes())
+    for k, f in enumerate(faces):
+        body += np.uint8(3).tobytes() + np.asarray(f, "<i4").tobytes()
+        if labels is not None:
+            body += np.asarray(labels[k], "<i4").tobytes()
+    path.write_bytes(head.encode() + bytes(body))
+
+
+def test_binary_ply_face_labels_are_parts_and_a_plain_binary_ply_has_none(tmp_path: Path) -> None:
+    whole = trimesh.util.concatenate([m for _, m in chair(1.0, True)])
+    labels = (np.arange(len(whole.faces)) >= 12).astype(int)  # seat: faces 0-11
+    labelled, plain = tmp_path / "labelled.ply", tmp_path / "plain.ply"
+    _binary_ply(labelled, whole.vertices, whole.faces, labels)
+    _binary_ply(plain, whole.vertices, whole.faces, None)
+    seg = segmentation.read_segmentation(labelled, whole.vertices, whole.faces)
+    assert seg is not None and sorted(p.name for p in seg.parts) == ["seg0", "seg1"]
+    assert segmentation.read_segmentation(plain, whole.vertices, whole.faces) is None
+    rec = prepare_model(ModelRef("chair", "plain", plain, "folder"), tmp_path / "out", FAST, PartLabelSettings())
+    assert rec["status"] == "ok" and "parts" not in rec
+
+
 # ---------------------------------------------------------------- prepare (no renderer)
 
 

@@ -140,7 +140,10 @@ def _ply_labels(path: Path) -> Segmentation | None:
     labels = None
     for element in ("face", "vertex"):
         data = raw.get(element, {}).get("data", {})
-        name = next((n for n in PLY_LABEL_NAMES if n in data), None)
+        # a binary PLY's element is one structured array (its fields are the properties), an
+        # ASCII one's a dict of arrays: ask for the names, never compare values
+        fields = data.dtype.names or () if isinstance(data, np.ndarray) else tuple(data)
+        name = next((n for n in PLY_LABEL_NAMES if n in fields), None)
         if name is not None:
             values = np.asarray(data[name]).reshape(-1)
             labels = values if element == "face" else values[faces[:, 0]]
