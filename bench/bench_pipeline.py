@@ -189,6 +189,9 @@ def main() -> int:
         "backends": {},
     }
     print(f"prepare: {prepare_s:.1f} core-s, {prepare_s / total:.3f} per model ({n_ok}/{total} ok)", flush=True)
+    if n_ok < total:  # a cost per model of failed models measures the failure, not the pipeline
+        print(f"error: {total - n_ok} of {total} corpus models failed prepare (their record.json says why)")
+        return 1
     for backend in backends:
         s = settings(backend)
         render_s = run_stage(s, "render", lists)

@@ -3,7 +3,8 @@
 Stage keys chain: source ← (source, seed); prepare ← prepare settings (+ part label settings for
 a file source) + source key; render ←
 render settings + seed + prepare key; augment ← augment settings + seed + render key; shards ←
-shard settings + seed + augment key. Changing the pencil settings therefore changes only the
+shard settings + seed + augment key (+ the fit key when the fit stage is on); fit ← fit
+settings + seed + template files + prepare key. Changing the pencil settings therefore changes only the
 augment and shard keys: prepared meshes and renders are found again under their old keys.
 """
 
@@ -15,6 +16,7 @@ import os
 from pathlib import Path
 
 from augment.settings import AugmentSettings
+from pipeline.core.fit_settings import PatchFitSettings
 from pipeline.core.settings_io import SettingError, from_dict, parse_json_object, setting
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
 from pipeline.dataset.shards import ShardSettings
@@ -26,6 +28,38 @@ from render.settings import RenderSettings
 DEFAULT_WORK_DIR = Path("data/work")
 DEFAULT_DATASET_DIR = Path("data/dataset")
 PART_LABEL_CHOICES = ("segmentation", "none")
+
+
+# The fit stage's templates are files of the trainer (its built-in ones, then ./templates/, as
+# train.templates.load_template resolves a name): read here as bytes, never imported (the dataset
+# side does not import the trainer). Their content keys the fit stage, so an edited template
+# re-fits; the fit's record names the template's own sha256 too.
+TEMPLATE_DIRS = (Path(__file__).resolve().parents[1] / "train" / "templates" / "data", Path("templates"))
+
+
+@functools.lru_cache(maxsize=64)
+def _file_sha(path: str, mtime_ns: int, size: int) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def template_fingerprints(named: tuple[str, ...]) -> dict[str, str]:
+    """sha256 of every template file a fit could load: the built-in and ./templates/ ones, and
+    the files ``named`` (CATEGORY=FILE pairs); names that are no file (sphere24) stand for themselves."""
+    # keyed by names that do not depend on where the build runs (the key reaches meta.json)
+    paths = {
+        f"{where}/{p.name}": p for where, d in zip(("builtin", "user"), TEMPLATE_DIRS) for p in sorted(d.glob("*.json"))
+    }
+    for item in named:
+        p = Path(item.partition("=")[2])
+        if p.is_file():
+            paths[f"file/{p.name}"] = p
+    out = {}
+    for name, p in sorted(paths.items()):
+        st = p.stat()
+        out[name] = _file_sha(str(p.resolve()), st.st_mtime_ns, st.st_size)
+    return out
 
 
 @functools.lru_cache(maxsize=16)
@@ -89,6 +123,9 @@ class BuildSettings:
     render_overrides: str = _overrides("RenderSettings", "render_settings")
     augment_overrides: str = _overrides("AugmentSettings", "augment_settings")
     shard_overrides: str = _overrides("ShardSettings", "shard_settings")
+    # The fit stage (opt-in): off, no key, manifest or shard byte changes
+    fit_patches: bool = setting(False, "fit each category's template to every model; shards gain the fit")
+    fit_overrides: str = _overrides("PatchFitSettings", "fit_settings")
     # A file source's part labels (procedural parts come from the generator): read as
     # `python -m train.templates build --source` reads them, so shards match that template.
     part_labels: str = setting("segmentation", "file source: 'segmentation' (OBJ/glTF/PLY groups, .pts/.seg) or 'none'")
@@ -131,6 +168,9 @@ class BuildSettings:
 
     def shard_settings(self) -> ShardSettings:
         return from_dict(ShardSettings, parse_json_object(self.shard_overrides))
+
+    def fit_settings(self) -> PatchFitSettings:
+        return from_dict(PatchFitSettings, parse_json_object(self.fit_overrides))
 
     def part_label_settings(self) -> PartLabelSettings | None:
         """How prepare names a file source's parts; None for the procedural source (its parts
@@ -186,10 +226,19 @@ class BuildSettings:
             "augment", {"augment": settings_dict(self.augment_settings()), "seed": self.seed}, self.render_key()
         )
 
-    def shards_key(self) -> str:
+    def fit_key(self) -> str:
+        fit = self.fit_settings()
         return stage_key(
-            "shards", {"shards": settings_dict(self.shard_settings()), "seed": self.seed}, self.augment_key()
+            "fit",
+            {"fit": settings_dict(fit), "seed": self.seed, "templates": template_fingerprints(fit.templates)},
+            self.prepare_key(),
         )
+
+    def shards_key(self) -> str:
+        settings = {"shards": settings_dict(self.shard_settings()), "seed": self.seed}
+        if self.fit_patches:  # only then: with the stage off the key is what it always was
+            settings["fit"] = self.fit_key()
+        return stage_key("shards", settings, self.augment_key())
 
     def stage_dir(self, stage: str) -> Path:
         key = {
@@ -198,6 +247,7 @@ class BuildSettings:
             "render": self.render_key,
             "augment": self.augment_key,
             "shards": self.shards_key,
+            "fit": self.fit_key,
         }[stage]()
         return Path(self.work_dir) / key
 
@@ -213,8 +263,13 @@ class BuildSettings:
             "augment": settings_dict(self.augment_settings()),
             "shards": settings_dict(self.shard_settings()),
             **({} if self.is_procedural else {"parts": self._parts_manifest()}),
-            "stage_keys": {s: self.stage_dir(s).name for s in ("source", "prepare", "render", "augment", "shards")},
+            **({"fit": settings_dict(self.fit_settings())} if self.fit_patches else {}),
+            "stage_keys": {s: self.stage_dir(s).name for s in self.stages()},
         }
+
+    def stages(self) -> tuple[str, ...]:
+        """The stages this build runs, in order (the fit stage only when asked for)."""
+        return ("source", "prepare", "render", "augment") + (("fit",) if self.fit_patches else ()) + ("shards",)
 
     def _parts_manifest(self) -> dict:
         """The part label settings without this machine's paths (the labels folder by name)."""

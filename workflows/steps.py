@@ -21,7 +21,7 @@ from pathlib import Path
 from pipeline.core.atomic import read_json, storage_error, write_json
 from pipeline.core.hashing import file_sha256
 from pipeline.core.records import Progress, model_dir
-from pipeline.core.schema import FRAGMENT
+from pipeline.core.schema import FRAGMENT, RECORD, SAMPLES_FILE
 from pipeline.core.stage_keys import settings_hash
 from pipeline.dataset.manifest import (
     build_manifest,
@@ -32,7 +32,7 @@ from pipeline.dataset.manifest import (
     write_fragment,
     write_manifest,
 )
-from pipeline.dataset.shards import ModelDirs, list_shards, retire_category, write_category_shards
+from pipeline.dataset.shards import ModelDirs, ShardSet, list_shards, retire_category, write_category_shards
 from workflows.build_settings import BuildSettings
 from workflows.listing import duplicate_outcome, model_ref
 
@@ -213,6 +213,146 @@ def augment_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = N
     return _write_batch(s, "augment", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0)
 
 
+def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None) -> dict:
+    """Fit the category's template to the batch's prepared models. The fitting is the trainer's
+    code (``train.patch_fit``), run as the stage's own process as render runs Blender: the
+    dataset side never imports the trainer, and the fit gets one thread of its own. Targets are
+    gathered here (labelled as the shard samples are); a model whose input is bad is recorded
+    failed here, one whose fit fails is recorded failed there."""
+    t0 = time.perf_counter()
+    from pipeline.core.errors import ModelError
+    from pipeline.core.records import read_record, write_failed
+    from pipeline.dataset.shards import fit_target
+
+    category = lst["category"]
+    ok, failed = _upstream(s, "prepare", lst, batch)
+    fit, stage, prep = s.fit_settings(), s.stage_dir("fit"), s.stage_dir("prepare")
+    entries: list[dict] = []
+    arrays: dict = {}
+    for m in ok:
+        folder = model_dir(stage, category, m["work_id"])
+        if read_record(folder) is not None:
+            continue  # done (ok or failed) by an earlier run
+        try:
+            pts, ids, names, present = fit_target(
+                category, model_dir(prep, category, m["work_id"]), m["model_id"], fit.points, s.seed
+            )
+        except ModelError as err:
+            write_failed(folder, err, category=category, model_id=m["model_id"])
+            continue
+        arrays[f"points_{len(entries)}"] = pts
+        if ids is not None:
+            arrays[f"parts_{len(entries)}"] = ids
+        path = str(model_dir(prep, category, m["work_id"]) / SAMPLES_FILE)
+        entries.append({**{k: m[k] for k in ("model_id", "work_id")}, "path": path, "names": names, "present": present})
+    if progress is not None:
+        progress(0, len(ok), f"fit {category} batch {batch}: fitting {len(entries)} models")
+    answer = _run_fit_job(s, category, entries, arrays) if entries else {"cpu_seconds": 0.0}
+    outcomes = failed + [_outcome(m, "fit", read_record(model_dir(stage, category, m["work_id"]))) for m in ok]
+    if progress is not None:
+        progress(len(ok), len(ok), f"fit {category} batch {batch}: done")
+    return _write_batch(
+        s, "fit", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0, cpu_seconds=answer["cpu_seconds"]
+    )
+
+
+def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: dict) -> dict:
+    """Hand the batch to ``python -m train.patch_fit`` in a job folder of its own; its answer."""
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    import numpy as np
+
+    from pipeline.core.schema import FIT_JOB_FILE, FIT_RESULT_FILE, FIT_TARGETS_FILE
+    from pipeline.core.stage_keys import settings_dict
+
+    stage = s.stage_dir("fit")
+    (stage / category).mkdir(parents=True, exist_ok=True)
+    job_dir = Path(tempfile.mkdtemp(prefix="_job-", dir=stage / category))
+    try:
+        np.savez(job_dir / FIT_TARGETS_FILE, **arrays)
+        job = {
+            "category": category,
+            "template": s.fit_settings().template_for(category),
+            "settings": settings_dict(s.fit_settings()),
+            "seed": s.seed,
+            "stage_dir": str(stage),
+            "models": entries,
+        }
+        write_json(job_dir / FIT_JOB_FILE, job)
+        root = str(Path(__file__).resolve().parents[1])
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
+        proc = subprocess.run(
+            [sys.executable, "-m", "train.patch_fit", str(job_dir / FIT_JOB_FILE)],
+            env=env,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise RuntimeError(f"fit stage process for {category} exited with {proc.returncode}: {tail[0]}")
+        return read_json(job_dir / FIT_RESULT_FILE)
+    finally:
+        shutil.rmtree(job_dir, ignore_errors=True)
+
+
+def fit_results(s: BuildSettings, lst: dict) -> tuple[dict[str, tuple], list[dict]]:
+    """The fit stage's results of a category, by work id: (parameters, FIT_MEMBER fields); and
+    the models it failed, as the shard step lists failures."""
+    import numpy as np
+
+    from pipeline.core.schema import FIT_FIELDS, FIT_PARAMS_FILE
+
+    good: dict[str, tuple] = {}
+    bad: list[dict] = []
+    for b in range(n_batches(len(lst["models"]), s.batch_size)):
+        for m in read_json(batch_path(s, "fit", lst, b))["models"]:
+            if m["stage"] != "fit":
+                continue  # failed upstream: the augment batches carry it too
+            folder = model_dir(s.stage_dir("fit"), lst["category"], m["work_id"])
+            if m["status"] == "ok":
+                try:
+                    rec = read_json(folder / RECORD)
+                    good[m["work_id"]] = (np.load(folder / FIT_PARAMS_FILE), {k: rec[k] for k in FIT_FIELDS})
+                    continue
+                except (OSError, ValueError, KeyError) as exc:
+                    m = {**m, "error": {"path": str(folder), "reason": f"fit result unreadable: {exc}"}}
+            bad.append(
+                {
+                    "model_id": m["model_id"],
+                    "work_id": m["work_id"],
+                    "stage": "fit",
+                    "path": s.portable_path(m["error"].get("path")),
+                    "reason": m["error"].get("reason"),
+                }
+            )
+    return good, bad
+
+
+def fit_summary(category: str, result: ShardSet, fits: dict[str, tuple], work_ids: dict[str, str]) -> dict:
+    """What category.json records of the fit stage: the template and the mean L_Ch of the
+    template and of the fits over the models built (CPU time stays in the work folder: it
+    differs between equal builds, the manifest must not)."""
+    from pipeline.core.schema import sample_key
+
+    built = {k for infos in result.shards.values() for i in infos for k in i.keys}
+    infos = [fits[w][1] for mid, w in sorted(work_ids.items()) if sample_key(category, mid) in built and w in fits]
+    if not infos:
+        return {"models": 0}
+    return {
+        "models": len(infos),
+        "template": infos[0]["template"],
+        "template_sha256": infos[0]["template_sha256"],
+        **{k: infos[0][k] for k in ("steps", "lr", "points")},
+        "chamfer_template": round(sum(i["chamfer_template"] for i in infos) / len(infos), 7),
+        "chamfer_fitted": round(sum(i["chamfer_fitted"] for i in infos) / len(infos), 7),
+    }
+
+
 def listing_field(s: BuildSettings, lst: dict) -> str | None:
     """What the category fragment records of the source list: its key for file sources (so a
     changed folder makes the category stale); nothing for the procedural source, fixed by seed."""
@@ -238,12 +378,19 @@ def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
             }
             for m in bad
         ]
+    fits: dict[str, tuple] = {}
+    if s.fit_patches:  # a model the fit failed is a failed model, as at any other stage
+        fits, fit_failed = fit_results(s, lst)
+        fit_failed = [f for f in fit_failed if f["work_id"] in {m["work_id"] for m in ok}]
+        ok = [m for m in ok if m["work_id"] in fits]
+        failed += [{k: v for k, v in f.items() if k != "work_id"} for f in fit_failed]
     dirs = [
         ModelDirs(
             m["model_id"],
             model_dir(s.stage_dir("prepare"), category, m["work_id"]),
             model_dir(s.stage_dir("render"), category, m["work_id"]),
             model_dir(s.stage_dir("augment"), category, m["work_id"]),
+            fits.get(m["work_id"]),
         )
         for m in ok
     ]
@@ -260,6 +407,9 @@ def shards_step(s: BuildSettings, lst: dict, progress: Progress = None) -> dict:
             n,
             failed,
             listing=listing_field(s, lst),
+            fit=fit_summary(category, result, fits, {m["model_id"]: m["work_id"] for m in ok})
+            if s.fit_patches
+            else None,
         )
         write_fragment(Path(s.dataset_dir) / category, holder["fragment"])
 
@@ -309,7 +459,7 @@ def read_runs(work_dir: Path) -> dict[str, list[dict]]:
 def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
     out = {}
-    for stage in ("prepare", "render", "augment"):
+    for stage in ("prepare", "render", "augment") + (("fit",) if s.fit_patches else ()):
         out[stage] = sum(
             read_json(p).get("seconds", 0.0)
             for lst in listings

@@ -1,7 +1,7 @@
 """Luigi tasks. Thin: parameters, dependencies, targets; each run() is one call into
 workflows.steps. Order: SourceList → PrepareBatch → RenderBatch → AugmentBatch (per batch of
-models) → CategoryShards → BuildCategory or BuildDataset (manifest.json). Parameters are
-checked when a task is made (workflows.validate)."""
+models; with --fit-patches also FitBatch after PrepareBatch) → CategoryShards → BuildCategory
+or BuildDataset (manifest.json). Parameters are checked when a task is made (workflows.validate)."""
 
 from __future__ import annotations
 
@@ -115,6 +115,22 @@ class AugmentBatch(_ListedTask):
             steps.augment_step(self.build, self.lst, self.batch, self.progress)
 
 
+class FitBatch(_ListedTask):
+    """The category's template fitted to the batch's prepared models (with --fit-patches)."""
+
+    batch = luigi.IntParameter()
+
+    def requires(self):
+        return self.clone(PrepareBatch)
+
+    def output(self):
+        return luigi.LocalTarget(steps.batch_path(self.build, "fit", self.lst, self.batch))
+
+    def run(self):
+        with self.recorded():
+            steps.fit_step(self.build, self.lst, self.batch, self.progress)
+
+
 class CategoryShards(_ListedTask):
     """The category's shards + category.json in the dataset folder, current for these settings
     and this model list; damaged or missing shards make it incomplete, so a re-run repairs them."""
@@ -127,7 +143,8 @@ class CategoryShards(_ListedTask):
         # Batches are static dependencies: with a central scheduler every worker then knows them
         # and can take any (dynamic ones would be runnable only by the worker that yielded them).
         n = steps.n_batches(len(self.lst["models"]), self.batch_size)
-        return [self.clone(SourceList)] + [self.clone(AugmentBatch, batch=b) for b in range(n)]
+        fits = [self.clone(FitBatch, batch=b) for b in range(n)] if self.build.fit_patches else []
+        return [self.clone(SourceList)] + [self.clone(AugmentBatch, batch=b) for b in range(n)] + fits
 
     def complete(self):
         return not steps.category_problems(self.build, self.lst, self.verify)

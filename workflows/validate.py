@@ -26,6 +26,7 @@ _OVERRIDES = {
     "render_overrides": "render_settings",
     "augment_overrides": "augment_settings",
     "shard_overrides": "shard_settings",
+    "fit_overrides": "fit_settings",
 }
 
 

@@ -19,8 +19,9 @@ Per-model stage folders, ``<stage-dir>/<category>/<model_id>/``:
 Dataset folder: ``MANIFEST``, and per category ``<category>/FRAGMENT`` and
 ``<category>/shard_name(split, i)`` WebDataset tars. A shard sample is keyed ``sample_key(...)``;
 its members are ``REQUIRED_MEMBERS``, one ``sketch_name(view, variant)`` per view and variant, and
-``POINT_PARTS_MEMBER`` where the source has part labels. ``meta.json`` holds the fields of
-:class:`SampleMeta`.
+``POINT_PARTS_MEMBER`` where the source has part labels, and ``FIT_MEMBERS`` when the build ran
+the fit stage (``<stage-dir>/<category>/<model_id>/FIT_PARAMS_FILE`` + a record of
+``FIT_FIELDS``). ``meta.json`` holds the fields of :class:`SampleMeta`.
 
 Part fields. A model's parts come from the procedural generator's sidecar (labels such as
 ``wing_l``, ``engine0_r``) or, for a file source, from the mesh's segmentation (OBJ groups, glTF
@@ -59,6 +60,11 @@ LINE_MESH_FILE = "lines.ply"
 SAMPLES_FILE = "samples.npy"
 SAMPLE_PARTS_FILE = "sample_parts.npy"
 CAMERAS_FILE = "cameras.json"
+FIT_PARAMS_FILE = "fit_params.npy"  # the fit stage's per-model result (float32 (D,))
+# The fit stage's batch job, handed to its own process (train.patch_fit) and answered there.
+FIT_JOB_FILE = "fit_job.json"
+FIT_TARGETS_FILE = "fit_targets.npz"
+FIT_RESULT_FILE = "fit_result.json"
 STROKES_FILE = "strokes.json"
 VIEW_GLOB = "view_*.png"
 SKETCH_GLOB = "sketch_*_*.png"
@@ -101,6 +107,10 @@ CAMERAS_MEMBER = CAMERAS_FILE  # the render stage's cameras.json
 META_MEMBER = "meta.json"  # SampleMeta
 POINT_PARTS_MEMBER = "point_parts.npy"
 REQUIRED_MEMBERS = (POINTS_MEMBER, STROKES_MEMBER, CAMERAS_MEMBER, META_MEMBER)
+# With the fit stage on (BuildSettings.fit_patches): the template fitted to the model.
+FIT_PARAMS_MEMBER = FIT_PARAMS_FILE  # float32 (D,): the template's parameters after the fit
+FIT_MEMBER = "fit.json"  # FIT_FIELDS: which template, its active patches, L_Ch before and after
+FIT_MEMBERS = (FIT_PARAMS_MEMBER, FIT_MEMBER)
 
 
 def shard_name(split: str, index: int) -> str:
@@ -169,6 +179,20 @@ FRAGMENT_FIELDS = (
 SPLIT_FIELDS = ("samples", "shards")
 SHARD_FIELDS = ("name", "samples", "bytes", "sha256", "keys")
 FAILED_FIELDS = ("model_id", "stage", "path", "reason")
+# FIT_MEMBER of a sample, also the fit stage's record fields; a category fitted has FRAGMENT_FIT
+# in its category.json (the stage's figures over the models built).
+FIT_FIELDS = (
+    "template",
+    "template_sha256",
+    "patches",
+    "active_patches",
+    "steps",
+    "lr",
+    "points",
+    "chamfer_template",
+    "chamfer_fitted",
+)
+FRAGMENT_FIT = "patch_fit"
 
 
 # ---------------------------------------------------------------- part families

@@ -15,7 +15,7 @@ from typing import Any
 
 from pipeline import __version__
 from pipeline.core.atomic import dumps_json, read_json, write_json
-from pipeline.core.schema import FRAGMENT, MANIFEST, SPLITS
+from pipeline.core.schema import FRAGMENT, FRAGMENT_FIT, MANIFEST, SPLITS
 from pipeline.dataset.shards import ShardSet
 
 FORMAT = 1
@@ -35,9 +35,11 @@ def category_fragment(
     models_requested: int,
     upstream_failed: list[dict],
     listing: str | None = None,
+    fit: dict | None = None,
 ) -> dict:
     """The manifest entry of one category after its shards were written. ``listing`` is the key
-    of the source list it was built from (file sources only: a changed folder changes it)."""
+    of the source list it was built from (file sources only: a changed folder changes it);
+    ``fit`` the fit stage's figures over the models built (only when the stage ran)."""
     failed = sorted(upstream_failed + result.failed, key=lambda f: (f["model_id"], f.get("stage", "")))
     splits = {
         s: {
@@ -58,6 +60,8 @@ def category_fragment(
     }
     if listing is not None:
         frag["listing"] = listing
+    if fit is not None:
+        frag[FRAGMENT_FIT] = fit
     frag["checksum"] = content_checksum(frag)
     return frag
 

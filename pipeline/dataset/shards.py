@@ -39,6 +39,8 @@ from pipeline.core.hashing import file_sha256
 from pipeline.core.schema import (
     CAMERAS_FILE,
     CAMERAS_MEMBER,
+    FIT_MEMBER,
+    FIT_PARAMS_MEMBER,
     FRAGMENT,
     MANIFEST,
     META_MEMBER,
@@ -86,6 +88,8 @@ class ModelDirs:
     prepare_dir: Path
     render_dir: Path
     augment_dir: Path
+    # the fit stage's result, when it ran: (float32 parameters (D,), the FIT_MEMBER fields)
+    fit: tuple[np.ndarray, dict] | None = None
 
 
 @dataclasses.dataclass
@@ -207,6 +211,9 @@ def assemble_sample(
         members[p.name] = _read_bytes(p)
     members[STROKES_MEMBER] = _read_bytes(dirs.augment_dir / STROKES_FILE)
     members[CAMERAS_MEMBER] = _read_bytes(dirs.render_dir / CAMERAS_FILE)
+    if dirs.fit is not None:
+        members[FIT_PARAMS_MEMBER] = _npy_bytes(np.ascontiguousarray(dirs.fit[0], dtype=np.float32))
+        members[FIT_MEMBER] = dumps_json(dirs.fit[1]).encode()
     labels, present = _part_labels(prep)
     point_names = None
     prepared = prepared_point_parts(dirs.prepare_dir, prep, idx) if labels else None
@@ -243,6 +250,41 @@ def assemble_sample(
     )
     members[META_MEMBER] = dumps_json(meta.to_json()).encode()
     return Sample(key=key, split=meta.split, members=members)
+
+
+def fit_target(
+    category: str, prepare_dir: Path, model_id: str, n: int, seed: int
+) -> tuple[np.ndarray, np.ndarray | None, list[str] | None, list[str] | None]:
+    """What the fit stage fits a model to, from its prepare folder, labelled as its shard sample
+    is: (points (n, 6): a seeded subset of the samples, drawn with replacement when there are
+    fewer; per-point family ids or None; their names; the families present). ModelError on bad input."""
+    prep = _record(prepare_dir)
+    path = Path(prepare_dir) / SAMPLES_FILE
+    try:
+        pts = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ModelError(path, f"cannot load surface samples: {e}") from e
+    if pts.ndim != 2 or pts.shape[1] != 6 or not len(pts) or not np.isfinite(pts).all():
+        raise ModelError(path, f"surface samples must be finite (N, 6), got shape {pts.shape}")
+    idx = np.sort(rng_for(seed, "fit", category, model_id).choice(len(pts), size=n, replace=len(pts) < n))
+    points = np.ascontiguousarray(pts[idx], dtype=np.float32)
+    labels, present = _part_labels(prep)
+    if not labels:
+        return points, None, None, present
+    prepared = prepared_point_parts(prepare_dir, prep, idx)
+    if prepared is not None:
+        return points, prepared[0].astype(np.int64), prepared[1], present
+    obj = source_obj(prepare_dir, prep)
+    if obj is None:
+        return points, None, None, present
+    norm = prep.get("normalization") or {}
+    try:
+        ids, names = procedural_point_parts(
+            obj, points, norm["center"], norm["scale"], rng_for(seed, "fit-point-parts", category, model_id)
+        )
+    except (KeyError, ValueError) as e:
+        raise ModelError(obj, f"cannot label surface points by part: {e}") from e
+    return points, ids.astype(np.int64), names, present
 
 
 # ---------------------------------------------------------------- tar writing / reading
