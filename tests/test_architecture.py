@@ -51,10 +51,12 @@ TRAIN_LEVELS = {
     "train.objective": 5,
     "train.data": 5,
     "train.fit": 6,
+    "train.patch_fit": 7,  # the fit stage (a template fitted to shapes, no network) and its export
     "train.evaluate": 7,
     "train.predict": 7,
     "train.interpolate": 7,
     "train.recipes": 7,
+    "train.serve": 7,  # the browser testbed: predict's path behind a web page
     "train.cli": 8,
     "train.__main__": 8,
     "train": 8,

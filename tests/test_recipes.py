@@ -40,7 +40,7 @@ def _fit(argv: list[str]) -> FitSettings:
 
     p = argparse.ArgumentParser()
     _fit_args(p)
-    return fit_settings(p.parse_args(argv), given_flags(p, argv))
+    return fit_settings(p.parse_args(argv), given_flags(argv))
 
 
 def test_fit_recipe_flag_takes_the_recipe_and_flags_override_it() -> None:

@@ -201,3 +201,21 @@ def test_build_settings_check_their_ranges_for_library_callers_too(tmp_path):
         BuildSettings(views=0, work_dir=tmp_path)
     with pytest.raises(SettingError, match=r"models_per_category must be an integer >= 0 \(0 = every model\)"):
         BuildSettings(models_per_category=-1, work_dir=tmp_path)
+
+
+def test_a_repeated_list_flag_gathers_its_values_and_a_default_list_is_replaced() -> None:
+    import argparse
+    import dataclasses
+
+    from pipeline.core.settings_io import add_arguments, from_args, setting
+
+    @dataclasses.dataclass(frozen=True)
+    class S:
+        names: tuple[str, ...] = setting((), "several")
+        sizes: tuple[float, ...] = setting((1.0, 2.0), "with a default")
+
+    p = argparse.ArgumentParser()
+    add_arguments(p, S)
+    assert from_args(S, p.parse_args(["--names", "a", "--names", "b", "c"])).names == ("a", "b", "c")
+    assert from_args(S, p.parse_args([])) == S()
+    assert from_args(S, p.parse_args(["--sizes", "3"])).sizes == (3.0,)

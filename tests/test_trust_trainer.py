@@ -255,7 +255,7 @@ def test_evaluate_and_interpolate_name_the_bad_flag(world, tmp_path, capsys):
     pr = ["predict", "--checkpoint", ck, "--sketch", sk, "--out", str(tmp_path / "p")]
     assert cli_error(capsys, pr + ["--part", "guard=maybe"]).endswith("--part guard=maybe: use NAME=on or NAME=off")
     assert cli_error(capsys, pr + ["--part", "wing=off"]).endswith(
-        "--part: template has no optional part(s) ['wing']; it has []"
+        "--part wing: the checkpoint's template (sphere24) has no such optional part; its optional parts: none"
     )
     assert cli_error(capsys, pr + ["--scale", "-1"]).endswith("--units/--scale: scale must be positive, got -1.0")
     assert not any((tmp_path / n).exists() for n in ("e.json", "i", "p"))

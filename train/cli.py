@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from pipeline.core.errors import ModelError
-from pipeline.core.settings_io import SettingError, add_arguments, from_args
+from pipeline.core.settings_io import SettingError, add_arguments, from_args, given_fields
 from train.errors import UsageError, one_line
 from train.losses.weights import add_weight_flags, weights_from_flags
 from train.templates import TemplateError
@@ -22,17 +22,14 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
     from train.fit import FitSettings
     from train.recipes import RECIPES, describe
 
-    add_arguments(p, FitSettings, skip=OWN_FLAGS)  # one flag per setting, help from the field
-    for action in p._actions:  # a recipe names the category and the template
-        if action.dest in RECIPE_NAMES:
-            action.required, action.default = False, None
+    # one flag per setting, help from the field; a recipe names the category and the template
+    add_arguments(p, FitSettings, skip=OWN_FLAGS, optional=RECIPE_NAMES)
     p.add_argument(
         "--recipe",
         choices=RECIPES,
         default=None,
         help="start from a named recipe, a complete set of settings measured for that category "
-        "(BENCHMARKS.md's quality table); any flag given overrides its value: "
-        + "; ".join(f"{r}: {describe(r)}" for r in RECIPES),
+        "(the quality table); any flag given overrides its value: " + "; ".join(f"{r}: {describe(r)}" for r in RECIPES),
     )
     add_weight_flags(p)
     p.add_argument("--no-progress", action="store_true")
@@ -42,17 +39,15 @@ def _fit_args(p: argparse.ArgumentParser) -> None:
 OWN_FLAGS = ("weights",)
 # Required unless a recipe gives them.
 RECIPE_NAMES = ("category", "template")
+# predict's fields that --list-parts does without.
+PREDICT_LIST_ONLY = ("sketch", "out")
 
 
-def given_flags(parser: argparse.ArgumentParser, argv: list[str]) -> set[str]:
-    """Destinations of the options that appear in ``argv`` (what the user set, not a default)."""
-    given = set()
-    for token in argv:
-        option = token.split("=", 1)[0]
-        action = parser._option_string_actions.get(option)
-        if action is not None:
-            given.add(action.dest)
-    return given
+def given_flags(argv: list[str]) -> set[str]:
+    """The FitSettings fields whose flags appear in ``argv`` (what the user set, not a default)."""
+    from train.fit import FitSettings
+
+    return given_fields(FitSettings, argv, skip=OWN_FLAGS)
 
 
 def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSettings:
@@ -93,8 +88,7 @@ def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train", description=__doc__)
     sub = parser.add_subparsers(dest="cmd", required=True)
-    fit_parser = sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)")
-    _fit_args(fit_parser)
+    _fit_args(sub.add_parser("fit", help="train a sketch -> patches network (torchrun for DDP)"))
     from train.evaluate import EvaluateSettings
     from train.interpolate import InterpolateSettings
     from train.predict import PredictSettings
@@ -103,15 +97,28 @@ def main(argv: list[str] | None = None) -> int:
         sub.add_parser("evaluate", help="metrics of a checkpoint and of its template on a split"), EvaluateSettings
     )
     add_arguments(
-        sub.add_parser("predict", help="patches + OBJ + quad mesh + STEP + IGES + PNG from sketches"), PredictSettings
+        sub.add_parser("predict", help="patches + OBJ + quad mesh + STEP + IGES + PNG from sketches"),
+        PredictSettings,
+        optional=PREDICT_LIST_ONLY,
     )
     add_arguments(
         sub.add_parser("interpolate", help="meshes between two predictions (patch and latent space)"),
         InterpolateSettings,
     )
+    from train.serve.session import ServeSettings
+
+    add_arguments(
+        sub.add_parser("serve", help="the sketch-to-CAD testbed in the browser (the serve extra)"), ServeSettings
+    )
+    from train.patch_fit import ExportFitSettings
+
+    add_arguments(
+        sub.add_parser("export-fit", help="a model's fitted patches (--fit-patches) as STEP + IGES + OBJ + quad mesh"),
+        ExportFitSettings,
+    )
     argv = sys.argv[1:] if argv is None else list(argv)
     a = parser.parse_args(argv)
-    a.given = given_flags(fit_parser, argv) if a.cmd == "fit" else set()
+    a.given = given_flags(argv) if a.cmd == "fit" else set()
     try:
         _run(a)
     except (UsageError, SettingError, TemplateError, ModelError) as exc:
@@ -134,6 +141,16 @@ def _run(a: argparse.Namespace) -> None:
         from train.evaluate import EvaluateSettings, evaluate, format_table
 
         e = from_args(EvaluateSettings, a)
+        if e.images is not None:
+            from train.evaluate_images import evaluate_images, format_rows
+
+            res = evaluate_images(
+                e.checkpoint, e.images, tuple(e.tau), e.limit, e.out_path(), cad_check=e.cad_check > 0
+            )
+            print(format_rows(res))
+            print(format_table(res))
+            print(f"saved {e.out_path()}")
+            return
         with torch.no_grad():
             res = evaluate(
                 e.checkpoint,
@@ -151,6 +168,12 @@ def _run(a: argparse.Namespace) -> None:
     elif a.cmd == "predict":
         from train.predict import PredictSettings, predict
 
+        if a.list_parts:
+            _list_parts(a.checkpoint, a.json)
+            return
+        missing = [f"--{n}" for n in PREDICT_LIST_ONLY if getattr(a, n) is None]
+        if missing:
+            raise UsageError(f"{' and '.join(missing)} required (or --list-parts)")
         p = from_args(PredictSettings, a)
         res = predict(p.checkpoint, list(p.sketch), p.out, p.parts(), p.cad_units())
         if p.json:
@@ -168,6 +191,35 @@ def _run(a: argparse.Namespace) -> None:
         i = from_args(InterpolateSettings, a)
         res = interpolate(i.checkpoint, list(i.sketch_a), list(i.sketch_b), i.out, i.steps)
         print(json.dumps({k: v for k, v in res.items() if k != "params"}))
+    elif a.cmd == "serve":
+        from train.serve.session import ServeSettings
+
+        settings = from_args(ServeSettings, a)
+        from train.serve.app import serve  # a UsageError naming the install when gradio is missing
+
+        serve(settings)
+    elif a.cmd == "export-fit":
+        from train.patch_fit import ExportFitSettings, export_fit
+
+        e = from_args(ExportFitSettings, a)
+        res = export_fit(e)
+        print(json.dumps({k: res[k] for k in ("category", "model", "template", "chamfer_fitted", "step", "clean")}))
+        print(
+            f"wrote {e.out}/: patches.stp patches.igs mesh.obj quads.obj render.png patches.json export.json",
+            file=sys.stderr,
+        )
+
+
+def _list_parts(checkpoint: str, as_json: bool) -> None:
+    """``predict --list-parts``: the checkpoint's template's optional parts, then exit."""
+    from train.fit import load_run
+    from train.predict import describe_parts, template_parts
+
+    template = load_run(checkpoint).template
+    if as_json:
+        print(json.dumps({"template": template.name, "parts": template_parts(template)}, indent=1))
+    else:
+        print(describe_parts(template))
 
 
 if __name__ == "__main__":

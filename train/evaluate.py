@@ -113,7 +113,13 @@ class EvaluateSettings:
     """``python -m train evaluate``: one flag per field."""
 
     checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
-    dataset: str = setting(help="dataset folder holding <category>/<split>-NNNNN.tar")
+    dataset: str | None = setting(None, "dataset folder holding <category>/<split>-NNNNN.tar (or --images)")
+    images: str | None = setting(
+        None,
+        "instead of a dataset: a folder of drawings (PNG, JPEG, WebP, TIFF), each normalized as predict does, "
+        "with the CAD kernel's verdict on each; DIR/<stem>.obj|.ply|.stl beside a drawing is its ground truth, "
+        "measured with the metrics below",
+    )
     split: str = setting("test", f"split to evaluate: {', '.join(SPLITS)}")
     category: str | None = setting(None, "category (default: the run's)")
     views: int = setting(1, "views per sample the network sees")
@@ -130,11 +136,14 @@ class EvaluateSettings:
         # the split is the command line's to check; the numbers evaluate() checks for every caller
         if self.split not in SPLITS:
             raise UsageError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r} (--split)")
+        if (self.dataset is None) == (self.images is None):
+            raise UsageError("give --dataset (a split of shards) or --images (a folder of drawings), one of them")
 
     def out_path(self) -> str:
         """``out``, or a name after the checkpoint, so evaluating best.pt does not overwrite checkpoint.pt's."""
         ckpt = Path(self.checkpoint)
-        return self.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{self.split}.json"))
+        what = self.split if self.images is None else f"images-{Path(self.images).resolve().name}"
+        return self.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{what}.json"))
 
 
 def check_evaluate_args(views: int, taus: tuple[float, ...], limit: int | None) -> None:

@@ -30,10 +30,14 @@ from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
-from train.fit import load_run
+from train.fit import TrainedRun, load_run
 from train.geometry.intersections import Intersections, mesh_intersections
 from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.templates import FreePoint, JunctionPoint, Template, save_template
+
+# The optional parts of the shipped category templates, for --help (a test keeps it in step with
+# train/templates/data/; a checkpoint's own template may have others: --list-parts).
+SHIPPED_PARTS = "airplane engine; bathtub faucet; car spoiler; gun magazine, scope, stock; knife guard, pommel"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,13 +45,16 @@ class PredictSettings:
     """``python -m train predict``: one flag per field."""
 
     checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
-    sketch: tuple[str, ...] = setting(help="one or more drawings (views) of the same object: PNG, JPEG, WebP, TIFF")
-    out: str = setting(help="output folder")
+    sketch: tuple[str, ...] = setting(
+        help="one or more drawings (views) of the same object: PNG, JPEG, WebP, TIFF (required unless --list-parts)"
+    )
+    out: str = setting(help="output folder (required unless --list-parts)")
     part: tuple[str, ...] = setting(
         (),
-        "optional parts of the checkpoint's template on or off, e.g. engine=off (airplane); "
-        "a wrong name is an error listing the template's parts",
+        "optional parts of the checkpoint's template on or off, NAME=on|off; --list-parts prints a "
+        f"checkpoint's parts (shipped templates: {SHIPPED_PARTS}); a wrong name is an error listing them",
     )
+    list_parts: bool = setting(False, "print the optional parts of the checkpoint's template and exit")
     units: str = setting(
         DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
     )
@@ -71,6 +78,43 @@ class PredictSettings:
             return CadUnits(self.units, self.scale)
         except ValueError as exc:
             raise UsageError(f"--units/--scale: {exc}") from None
+
+
+def template_parts(template: Template) -> dict[str, dict[str, int]]:
+    """The template's optional parts: {name: {"patches": n, "closing_patches": m}}; a part's
+    patches go when it is off, its closing patches (if any) come in to seal the surface."""
+    return {
+        name: {
+            "patches": len(template.optional_parts.get(name, [])),
+            "closing_patches": len(template.closing_patches.get(name, [])),
+        }
+        for name in template.part_names
+    }
+
+
+def describe_parts(template: Template) -> str:
+    """``template_parts`` in words, one part a line (``--list-parts``)."""
+    parts = template_parts(template)
+    if not parts:
+        return f"template {template.name}: no optional parts (--part does not apply)"
+    lines = [f"template {template.name}: optional parts (--part NAME=on|off)"]
+    for name, n in parts.items():
+        closing = f", {n['closing_patches']} closing patches when off" if n["closing_patches"] else ""
+        lines.append(f"  {name}: {n['patches']} patches{closing}")
+    return "\n".join(lines)
+
+
+def check_parts(template: Template, parts: dict[str, bool]) -> list[int]:
+    """The patch ids for ``parts`` (``Template.active_patches``), or a UsageError naming the
+    unknown part(s) and the template's own."""
+    unknown = sorted(set(parts) - set(template.part_names))
+    if unknown:
+        has = ", ".join(template.part_names) or "none"
+        raise UsageError(
+            f"--part {', '.join(unknown)}: the checkpoint's template ({template.name}) has no such optional part; "
+            f"its optional parts: {has}"
+        )
+    return template.active_patches(parts)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -212,12 +256,23 @@ def predict(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"{out}: not a folder (--out)")
-    run = load_run(checkpoint)
+    return predict_run(load_run(checkpoint), sketches, out, parts, units)
+
+
+@torch.no_grad()
+def predict_run(
+    run: TrainedRun,
+    sketches: list[str | Path],
+    out: str | Path,
+    parts: dict[str, bool] | None = None,
+    units: CadUnits = CadUnits(),
+) -> dict:
+    """:func:`predict` with a run already loaded (the browser testbed keeps its checkpoints loaded)."""
+    out = Path(out)
     template = run.template
-    try:  # a part switched off drops its patches and brings in its closing patches: still closed
-        keep = template.active_patches(parts)
-    except ValueError as exc:
-        raise UsageError(f"--part: {exc}") from None
+    # checked before anything is written, so a wrong --part or sketch leaves no files behind;
+    # a part switched off drops its patches and brings in its closing patches: still closed
+    keep = check_parts(template, parts or {})
     seen = load_sketches(sketches, run.settings.image_size, run.framing)
     params = run.model(seen.tensor)[0]
     save_template(predicted_template(template, params), out / "patches.json")

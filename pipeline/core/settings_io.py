@@ -253,8 +253,15 @@ def add_arguments(
         elif typing.get_origin(tp) is tuple:
             args = typing.get_args(tp)
             kw["type"] = args[0]
-            many = "*" if default is not dataclasses.MISSING and default in ((), None) else "+"
-            kw["nargs"] = many if len(args) == 2 and args[1] is Ellipsis else len(args)
+            empty = default is dataclasses.MISSING or default in ((), None)
+            if len(args) == 2 and args[1] is Ellipsis:
+                kw["nargs"] = "+" if default is dataclasses.MISSING else "*"
+                if empty and not positional:  # --x A --x B means both; a non-empty default is replaced, not grown
+                    kw["action"] = "extend"
+                    if kw.get("default") == ():
+                        kw["default"] = []  # extend grows a list; from_dict makes it a tuple again
+            else:
+                kw["nargs"] = len(args)
         else:
             kw["type"] = tp if tp in (int, float, Path) else str
         parser.add_argument(flag, **kw)

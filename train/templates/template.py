@@ -22,9 +22,9 @@ A template is a deformable set of Coons patches that share control points. It is
       ],                               # paper orientation after applying "reverse": c1 bottom
                                        # P(0,0)→P(1,0), c2 right →P(1,1), c3 top →P(0,1),
                                        # c4 left →P(0,0); P_s × P_t points outward
-      "optional_parts": {"turbine": [patch ids]},
+      "optional_parts": {"engine": [patch ids]},
                                        # patches present only when the part is present
-      "closing_patches": {"turbine": [patch ids]},
+      "closing_patches": {"engine": [patch ids]},
                                        # patches present only when the part is ABSENT: they close
                                        # the surface where the part was attached (written only
                                        # when some template part has them)
@@ -43,7 +43,7 @@ A template is a deformable set of Coons patches that share control points. It is
       "metadata": {...}                # free-form (source, category, construction settings)
     }
 
-With optional parts, ``Template.active_patches({"turbine": False})`` is the patch set of one
+With optional parts, ``Template.active_patches({"engine": False})`` is the patch set of one
 on/off combination; every combination is a closed surface (templates built from cuboids).
 
 Parameter vector (what the network outputs): points in order; a free point contributes its
