@@ -86,10 +86,13 @@ def old_path(data: bytes, size: int) -> torch.Tensor:
     return torch.from_numpy(1.0 - img.astype(np.float32) / 255.0)[None, None, None]
 
 
-def control_points(run, tensor: torch.Tensor) -> np.ndarray:
-    """The predicted surface's control points ``(P, 16, 3)`` for one network input."""
+def control_points(run, tensor: torch.Tensor, steady: bool = True) -> np.ndarray:
+    """The predicted surface's control points ``(P, 16, 3)`` for one network input: as ``predict``
+    computes them (``steady``), or the network's plain output (how predict read it before)."""
+    from train.predict import predict_params
+
     with torch.no_grad():
-        params = run.model(tensor)
+        params = predict_params(run, tensor) if steady else run.model(tensor)
         return run.template.patches_from_params(params.double())[0].reshape(-1, 16, 3).numpy()
 
 
@@ -118,10 +121,10 @@ def measure(run, sketches: list[np.ndarray], work: Path) -> dict:
     after = {n: [] for n in VARIANTS}
     before = {n: [] for n in VARIANTS}
     for i, g in enumerate(sketches):
-        old_clean = control_points(run, old_path(_encode(g), size))
+        old_clean = control_points(run, old_path(_encode(g), size), steady=False)
         for name, (suffix, data) in variants(g).items():
             after[name].append(point_distance(read(f"v{i}-{VARIANTS.index(name)}", suffix, data), clean[i]))
-            before[name].append(point_distance(control_points(run, old_path(data, size)), old_clean))
+            before[name].append(point_distance(control_points(run, old_path(data, size), steady=False), old_clean))
     return {
         "models": len(sketches),
         "between": between,

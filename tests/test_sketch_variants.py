@@ -5,9 +5,10 @@ A small procedural knife dataset is built and the shortened knife recipe trained
 test sketches (transparent PNG, grey-paper JPEG with a gradient, inverted, off-centre on a large
 canvas, non-square, 64×64, thick marker), read through ``predict``'s normalization, must move
 the prediction by at most a quarter of the mean control-point distance between the predictions
-for two different test models (issue 32; with this cheap run three variants meet it, every one
-stays within 0.6, the xfail test holds the full criterion); read the old way (grey + resize) the transparent, inverted,
-grey-paper and marker variants move it farther than two different models differ.
+for two different test models (issue 32; with this cheap run six of the seven meet it and the 64x64
+one stays within 0.35, the xfail test holds the full criterion); read the old way (grey + resize,
+no average over small jitters) the transparent, inverted, grey-paper and marker variants move it
+farther than two different models differ.
 
     OMP_NUM_THREADS=1 .venv/bin/python -m pytest tests/test_sketch_variants.py -m slow -s   # prints the table
 """
@@ -23,11 +24,18 @@ sys.path.insert(0, str(Path(__file__).parent))
 from sketch_variants import CATEGORY, VARIANTS, cheap_knife_run, measure, split_sketches, table  # noqa: E402
 
 TEST_MODELS = 10
-# Variants the cheap run keeps within the issue's quarter (12 test models: 0.00, 0.00, 0.17). The
-# grey-paper, off-centre, 64x64 and marker variants land at 0.29-0.50 of the between-model
-# distance: this network moves 0.32 of that distance for a one-pixel shift of the clean sketch
-# and 0.30 for a 0.5-pixel blur, so resampling alone costs that much (the xfail test below).
-WITHIN_A_QUARTER = ("transparent PNG", "inverted", "non-square canvas")
+# Variants the cheap run keeps within the issue's quarter (its 306-model run, 12 test models:
+# 0.00, 0.10, 0.00, 0.18, 0.06, 0.21). A 64x64 drawing lands at 0.27: this network moves a third
+# of the between-model distance for a one-pixel shift of its input, and a quarter-size drawing is
+# framed to within a pixel of the network's size at best (the xfail test below).
+WITHIN_A_QUARTER = (
+    "transparent PNG",
+    "grey-paper JPEG",
+    "inverted",
+    "off-centre on a large canvas",
+    "non-square canvas",
+    "thick marker",
+)
 
 
 @pytest.fixture(scope="module")
@@ -52,17 +60,15 @@ def test_variants_of_test_sketches_stay_with_the_clean_prediction(figures: dict)
     m = figures
     far = {n: r for n, r in _ratios(m, WITHIN_A_QUARTER).items() if r > 0.25}
     assert not far, f"variants farther than a quarter of two test models' distance: {far}\n{table(m)}"
-    every = {n: r for n, r in _ratios(m, VARIANTS).items() if r > 0.6}
-    assert not every, f"variants farther than 0.6 of two test models' distance: {every}\n{table(m)}"
+    every = {n: r for n, r in _ratios(m, VARIANTS).items() if r > 0.35}
+    assert not every, f"variants farther than 0.35 of two test models' distance: {every}\n{table(m)}"
     # the criterion can fail: without normalization these variants move it more than a model change
     for name in ("transparent PNG", "inverted", "grey-paper JPEG", "thick marker"):
         assert m["before"][name] > m["between"], (name, table(m))
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="grey-paper, off-centre, 64x64, marker variants: 0.29-0.50 of the between-model distance", strict=False
-)
+@pytest.mark.xfail(reason="the 64x64 variant: 0.27 of the between-model distance with the cheap run", strict=False)
 def test_every_variant_within_a_quarter(figures: dict) -> None:
     """Issue 32's criterion for all seven variants."""
     far = {n: r for n, r in _ratios(figures, VARIANTS).items() if r > 0.25}

@@ -29,7 +29,7 @@ from train.export.kernel_check import kernel_verdict
 from train.export.units import CadUnits
 from train.fit import load_run
 from train.objective import Objective
-from train.predict import load_sketches
+from train.predict import load_sketches, predict_params
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff")
 MESH_SUFFIXES = (".obj", ".ply", ".stl")
@@ -105,7 +105,7 @@ def evaluate_images(
     )
     for path in files:
         seen = load_sketches([path], s.image_size, run.framing)
-        params = run.model(seen.tensor)
+        params = predict_params(run, seen.tensor)
         row: dict = {"image": path.name, "input": {k: v for k, v in seen.reports[0].items() if k != "sketch"}}
         if cad_check:
             patches = template.patches_from_params(params.double())[0].numpy()[keep]

@@ -21,6 +21,7 @@ from pipeline.core.atomic import write_json, write_npy
 from pipeline.core.images import save_png
 from pipeline.core.settings_io import setting
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
+from train.augmentation import STEADY_SCALES, STEADY_SHIFTS_PX, steady_output
 from train.data import to_network
 from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
@@ -259,6 +260,17 @@ def predict(
     return predict_run(load_run(checkpoint), sketches, out, parts, units)
 
 
+STEADY_COPIES = len(STEADY_SHIFTS_PX) ** 2 * len(STEADY_SCALES)
+
+
+@torch.no_grad()
+def predict_params(run: TrainedRun, images: torch.Tensor) -> torch.Tensor:
+    """The network's parameters for normalized sketches ``(B, V, 1, S, S)``: its output averaged
+    over small jitters of the sketch (``train.augmentation.steady_output``), so that resampling a
+    person's drawing (a rescan, a redraw at another size) moves the prediction little."""
+    return steady_output(run.model, images)
+
+
 @torch.no_grad()
 def predict_run(
     run: TrainedRun,
@@ -274,10 +286,10 @@ def predict_run(
     # a part switched off drops its patches and brings in its closing patches: still closed
     keep = check_parts(template, parts or {})
     seen = load_sketches(sketches, run.settings.image_size, run.framing)
-    params = run.model(seen.tensor)[0]
+    params = predict_params(run, seen.tensor)[0]
     save_template(predicted_template(template, params), out / "patches.json")
     save_inputs(out, seen)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
-    result = {"input": seen.reports, **export_patches(patches, out, units)}
+    result = {"input": seen.reports, "jitter_copies": STEADY_COPIES, **export_patches(patches, out, units)}
     write_json(out / "prediction.json", result)
     return result
