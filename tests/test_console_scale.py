@@ -14,18 +14,19 @@ from pipeline.core.records import model_dir, write_ok
 from workflows import console, steps
 from workflows.build_settings import BuildSettings
 from workflows.console import StageCounter, batch_task_ids, stage_counts
-from workflows.tasks import BuildDataset, CategoryShards, PrepareBatch, RenderBatch
+from workflows.tasks import BuildDataset, CategoryShards, FitBatch, PrepareBatch, RenderBatch
 
 CATEGORIES = "mug,knife"
 
 
-def _root(tmp_path: Path, models: int, batch_size: int = 4) -> BuildDataset:
+def _root(tmp_path: Path, models: int, batch_size: int = 4, **kw) -> BuildDataset:
     return BuildDataset(
         categories=CATEGORIES,
         models_per_category=models,
         batch_size=batch_size,
         work_dir=str(tmp_path / "work"),
         dataset_dir=str(tmp_path / "ds"),
+        **kw,
     )
 
 
@@ -85,6 +86,20 @@ def test_counts_match_a_full_recount_through_a_build(tmp_path: Path) -> None:
     fresh = StageCounter(s, listings, batch_task_ids(root, listings))
     assert fresh.counts() == counter.counts() == stage_counts(s, listings)
     assert fresh.counts()["prepare"] == (7, 20)
+
+
+def test_a_build_with_the_fit_stage_counts_it_between_prepare_and_render(tmp_path: Path) -> None:
+    root = _root(tmp_path, 10, fit_patches=True)
+    s, listings = root.build, root.listings()
+    ids = batch_task_ids(root, listings)
+    assert len(ids) == 4 * 2 * 3
+    mug = listings[0]
+    assert ids[_task(root, mug, FitBatch, 1).task_id] == ("fit", "mug", 1)
+    counter = StageCounter(s, listings, ids)
+    assert list(counter.counts()) == ["prepare", "fit", "render", "augment", "shards"]
+    _finish(s, "fit", mug, 0)
+    assert counter.counts() == stage_counts(s, listings)
+    assert counter.counts()["fit"] == (4, 20)
 
 
 def _calls(monkeypatch: pytest.MonkeyPatch, counter: StageCounter) -> dict[str, int]:

@@ -50,7 +50,14 @@ def wrap(text: str, indent: str = "    ") -> str:
     return textwrap.fill(text, WIDTH, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
-STAGE_TASKS = {"prepare": "PrepareBatch", "render": "RenderBatch", "augment": "AugmentBatch"}
+STAGE_TASKS = {"prepare": "PrepareBatch", "fit": "FitBatch", "render": "RenderBatch", "augment": "AugmentBatch"}
+
+
+def build_stages(s: BuildSettings) -> tuple[str, ...]:
+    """The per-model stages this build runs, in the order the progress line shows them."""
+    return ("prepare", "fit", "render", "augment") if s.fit_patches else STAGES
+
+
 # A folder or file looked at less than this long after its last change is looked at again on the
 # next tick: a second change within a coarse timestamp (NFS, FAT: up to 2 s) would not move it.
 RACY_S = 2.0
@@ -62,7 +69,7 @@ def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int,
     finished batch counts whole (its upstream failures included); a running one counts the
     models with a record."""
     out = {}
-    for stage in STAGES:
+    for stage in build_stages(s):
         root = s.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
         done = total = 0
         for lst in listings:
@@ -172,7 +179,7 @@ class StageCounter:
         self.total = sum(len(lst["models"]) for lst in listings)
         self.stages = {
             stage: {lst["category"]: _StageBatches(s, root, lst) for lst in listings}
-            for stage, root in ((x, s.stage_dir(x)) for x in STAGES)
+            for stage, root in ((x, s.stage_dir(x)) for x in build_stages(s))
         }
         runs = Path(s.work_dir) / steps.RUNS
         self.runs = _Cached((runs,), _names(runs))
@@ -205,8 +212,8 @@ def batch_task_ids(root: luigi.Task, listings: list[dict]) -> dict[str, tuple[st
     out = {}
     for lst in listings:
         shards = root.clone(tasks.CategoryShards, category=lst["category"], listing=lst["key"])
-        for stage, family in STAGE_TASKS.items():
-            cls = getattr(tasks, family)
+        for stage in build_stages(root.build):
+            cls = getattr(tasks, STAGE_TASKS[stage])
             params = shards.clone(cls, batch=0).to_str_params(only_significant=True, only_public=True)
             for b in range(steps.n_batches(len(lst["models"]), root.build.batch_size)):
                 out[task_id_str(cls.get_task_family(), {**params, "batch": str(b)})] = (stage, lst["category"], b)
