@@ -50,9 +50,8 @@ class Reads(dict):
         self.read.add(key)
         return super().get(key, default)
 
-    def __contains__(self, key):
-        self.read.add(key)
-        return super().__contains__(key)
+    # ``in`` is not noted: asking whether an optional member (the fit stage's, say) is there is
+    # not reading it
 
 
 @pytest.fixture(scope="module")

@@ -166,7 +166,7 @@ def _run(a: argparse.Namespace) -> None:
         print(format_table(res))
         print(f"saved {e.out_path()}")
     elif a.cmd == "predict":
-        from train.predict import PredictSettings, predict
+        from train.predict import PredictSettings, predict, verdict_line
 
         if a.list_parts:
             _list_parts(a.checkpoint, a.json)
@@ -184,7 +184,7 @@ def _run(a: argparse.Namespace) -> None:
             f"wrote {p.out}/: patches.stp patches.igs mesh.obj quads.obj render.png input.png prediction.json",
             file=sys.stderr,
         )
-        print("prediction is clean" if res["clean"] else "NOT CLEAN: " + "; ".join(res["problems"]), file=sys.stderr)
+        print(verdict_line(res["clean"], res["problems"]), file=sys.stderr)
     elif a.cmd == "interpolate":
         from train.interpolate import InterpolateSettings, interpolate
 

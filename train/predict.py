@@ -260,6 +260,12 @@ def predict(
     return predict_run(load_run(checkpoint), sketches, out, parts, units)
 
 
+def verdict_line(clean: bool, problems: list[str]) -> str:
+    """The verdict in words, as ``predict`` prints it last (a mesh can be watertight and still
+    pass through itself)."""
+    return "prediction is clean" if clean else "NOT CLEAN: " + "; ".join(problems)
+
+
 STEADY_COPIES = len(STEADY_SHIFTS_PX) ** 2 * len(STEADY_SCALES)
 
 

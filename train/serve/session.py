@@ -23,7 +23,7 @@ from pipeline.core.settings_io import setting
 from train.errors import UsageError
 from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
 from train.fit import TrainedRun, load_run
-from train.predict import predict_run
+from train.predict import predict_run, verdict_line
 from train.serve.view_mesh import write_view_glb
 
 # What a request folder holds for the page to offer: key -> file name.
@@ -75,7 +75,7 @@ class ServeResult:
     @property
     def verdict(self) -> str:
         """The line ``python -m train predict`` prints for the same result."""
-        return "prediction is clean" if self.clean else "NOT CLEAN: " + "; ".join(self.problems)
+        return verdict_line(self.clean, self.problems)
 
 
 def checkpoint_labels(paths: Sequence[str | Path]) -> list[str]:
