@@ -234,7 +234,8 @@ def test_total_loss_reaches_every_parameter_and_ablation_switches_terms_off():
         collision=collision_pairs(t),
     )
     loss, terms = total_loss(t.patches_from_params(prm), st, target, normals, LossWeights(), **kwargs)
-    assert set(terms) == {"chamfer", "normal", "flat", "collision", "template_normal", "symmetry"}
+    assert set(terms) == {"chamfer", "normal", "flat", "collision", "template_normal", "symmetry", "fit"}
+    assert terms["fit"].item() == 0.0  # off by default (and without fit targets)
     assert all(terms[k].item() > 0 for k in ("chamfer", "normal", "flat", "template_normal", "symmetry"))
     weights = LossWeights()
     expected = sum(getattr(weights, k) * v for k, v in terms.items())

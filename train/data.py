@@ -1,8 +1,9 @@
 """Streams dataset shards into training / evaluation batches.
 
 Shards: ``<dataset>/<category>/<split>-NNNNN.tar`` (WebDataset), members ``points.npy``,
-``sketch_<view>_<variant>.png``, ``meta.json``, ``point_parts.npy`` (+ strokes/cameras, unused
-here); every name comes from :mod:`pipeline.core.schema`.
+``sketch_<view>_<variant>.png``, ``meta.json``, ``point_parts.npy``, ``fit_params.npy`` from a
+``--fit-patches`` build (+ strokes/cameras, unused here); every name comes from
+:mod:`pipeline.core.schema`.
 
 Training streams never end: each epoch re-shuffles the shard order with a seeded generator and
 each (rank, loader worker) slot reads a disjoint part (whole shards when there are enough, else
@@ -25,12 +26,20 @@ import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from pipeline.core.errors import ModelError
-from pipeline.core.schema import META_MEMBER, POINT_PARTS_MEMBER, POINTS_MEMBER, shard_glob, sketch_view_variant
+from pipeline.core.schema import (
+    FIT_PARAMS_MEMBER,
+    META_MEMBER,
+    POINT_PARTS_MEMBER,
+    POINTS_MEMBER,
+    shard_glob,
+    sketch_view_variant,
+)
 from pipeline.core.seeding import rng_for
 from pipeline.core.settings_io import setting
 from train.augmentation import Jitter, jitter_image
 from train.errors import UsageError
 from train.sketch_input import Framing, measure_framing
+from train.templates import FreePoint, Template
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +101,77 @@ def shard_framing(dataset: str | Path, category: str, image_size: int, limit: in
     return measure_framing(images)
 
 
+@dataclasses.dataclass(frozen=True)
+class ParamMirror:
+    """A template's parameter vector mirrored across x = 0: ``q = p[perm] * sign`` is the shape of
+    ``p`` mirrored (each point takes its partner's mirrored place), so a flipped
+    drawing's fitted parameters can follow the flipped target points."""
+
+    perm: np.ndarray  # (D,) int64
+    sign: np.ndarray  # (D,) float32: -1 on x coordinates and on junctions whose mirrored curve runs the other way
+
+    def __call__(self, params: np.ndarray) -> np.ndarray:
+        return (params[self.perm] * self.sign).astype(np.float32)
+
+
+def param_mirror(template: Template, tol: float = 1e-4) -> ParamMirror | None:
+    """The mirror of ``template``'s parameters across x = 0 (the plane the loader flips targets
+    across), or None when the template declares no symmetry about that plane (within ``tol``),
+    leaves a point without a partner, or its curves do not mirror onto curves (then a flipped
+    sample has no fit target). Checked on a perturbed shape: the mirrored parameters must give
+    the mirrored points."""
+    sym = template.symmetry
+    if sym is None or abs(sym.plane_x) > tol:
+        return None
+    partner = {k: k for k in sym.self_points}
+    for i, j in sym.pairs:
+        partner[i], partner[j] = j, i
+    if len(partner) != template.num_points:
+        return None
+    offsets = np.cumsum([0] + [3 if isinstance(p, FreePoint) else 1 for p in template.points])
+    perm = np.zeros(template.num_params, np.int64)
+    sign = np.ones(template.num_params, np.float32)
+    for i, p in enumerate(template.points):
+        j = partner[i]
+        if isinstance(p, FreePoint) != isinstance(template.points[j], FreePoint):
+            return None
+        if isinstance(p, FreePoint):
+            perm[offsets[j] : offsets[j] + 3] = np.arange(offsets[i], offsets[i] + 3)
+            sign[offsets[j]] = -1.0
+        else:  # the partner sits on the mirrored curve at t, or at 1 - t when it runs the other way
+            orient = _curve_image(template, partner, p.curve, template.points[j].curve)
+            if orient is None:
+                return None
+            perm[offsets[j]], sign[offsets[j]] = offsets[i], orient  # logit(1 - t) = -logit(t)
+    mirror = ParamMirror(perm, sign)
+    gen = torch.Generator().manual_seed(0)
+    p0 = template.initial_params(torch.float64)
+    p1 = p0 + 0.05 * torch.randn(p0.shape, generator=gen, dtype=torch.float64)
+    with torch.no_grad():
+        a = template.points_from_params(p1[None])[0].numpy()
+        b = template.points_from_params(torch.from_numpy(mirror(p1.numpy()).astype(np.float64))[None])[0].numpy()
+    expect = a * np.array([-1.0, 1.0, 1.0])
+    order = np.array([partner[k] for k in range(template.num_points)])
+    shown = np.empty_like(b)
+    shown[order] = expect
+    return mirror if np.abs(b - shown).max() <= 1e-3 else None
+
+
+def _curve_image(template: Template, partner: dict[int, int], ci: int, cj: int) -> int | None:
+    """+1 when curve ``ci`` mirrors onto curve ``cj`` running the same way, -1 the other way,
+    None when it does not mirror onto it."""
+    a, b = template.curves[ci], template.curves[cj]
+    if a.is_sub != b.is_sub:
+        return None
+    if not a.is_sub:
+        image = [partner[k] for k in a.points]
+        return 1 if image == list(b.points) else -1 if image[::-1] == list(b.points) else None
+    ends = (partner[a.start], partner[a.end])
+    if _curve_image(template, partner, a.parent, b.parent) is None:
+        return None
+    return 1 if ends == (b.start, b.end) else -1 if ends == (b.end, b.start) else None
+
+
 def to_network(img: np.ndarray) -> np.ndarray:
     """8-bit black-on-white -> float32 with ink = 1, paper = 0."""
     return (1.0 - img.astype(np.float32) / 255.0)[None]
@@ -118,15 +198,24 @@ def sketch_table(raw: dict) -> dict[int, list[str]]:
     return {v: sorted(names) for v, names in sorted(table.items())}
 
 
-def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, train: bool, flip_ok: bool) -> dict:
+def decode_sample(
+    raw: dict,
+    settings: DataSettings,
+    rng: np.random.Generator,
+    train: bool,
+    flip_ok: bool,
+    mirror: ParamMirror | None = None,
+) -> dict:
     """Raw shard sample -> {"images" (V,1,S,S), "view_mask" (V,), "points" (n,6), "point_parts" (n,),
-    "key", "meta"}."""
+    "key", "meta"}, plus "fit_params" (D,) and "fit_valid" when the sample has a fit: a flipped
+    sample's fit is mirrored by ``mirror``, or marked invalid without one."""
     key = raw.get("__key__", "?")
     try:
         points = np.load(io.BytesIO(raw[POINTS_MEMBER]), allow_pickle=False).astype(np.float32)
         meta = json.loads(raw[META_MEMBER]) if META_MEMBER in raw else {}
         part_ids = _point_parts(raw, len(points))
         table = sketch_table(raw)
+        fit = _fit_params(raw)
     except Exception as exc:  # noqa: BLE001 - reported with the sample's name
         raise ModelError(key, f"unreadable sample: {exc}") from exc
     if points.ndim != 2 or points.shape[1] != 6 or not table:
@@ -163,6 +252,10 @@ def decode_sample(raw: dict, settings: DataSettings, rng: np.random.Generator, t
     pts, part_ids = points[np.sort(idx)], part_ids[np.sort(idx)]
     if flip:  # a mirrored drawing shows the mirrored shape: mirror the target across x = 0
         pts = pts * np.array([-1, 1, 1, -1, 1, 1], np.float32)  # part families are side-free
+    if fit is not None:
+        usable = not flip or (mirror is not None and len(mirror.perm) == len(fit))
+        extra["fit_params"] = mirror(fit) if flip and usable else fit
+        extra["fit_valid"] = usable
     return {
         "images": images,
         "view_mask": mask,
@@ -184,6 +277,32 @@ def _point_parts(raw: dict, n: int) -> np.ndarray:
     return ids
 
 
+def _fit_params(raw: dict) -> np.ndarray | None:
+    """The sample's fitted template parameters (D,), None when the build did not fit patches."""
+    if FIT_PARAMS_MEMBER not in raw:
+        return None
+    params = np.load(io.BytesIO(raw[FIT_PARAMS_MEMBER]), allow_pickle=False).astype(np.float32)
+    if params.ndim != 1 or not np.isfinite(params).all():
+        raise ValueError(f"{FIT_PARAMS_MEMBER} must be a finite vector, got shape {params.shape}")
+    return params
+
+
+def _collate_fit(samples: list[dict]) -> dict[str, torch.Tensor]:
+    """The batch's fit targets, when some sample has one: "fit_params" (B, D) and "fit_valid" (B,)
+    (zeros and False for the samples without); nothing when none has."""
+    fits = [s["fit_params"] for s in samples if "fit_params" in s]
+    if not fits:
+        return {}
+    if len({len(f) for f in fits}) > 1:
+        keys = ", ".join(s["key"] for s in samples)
+        raise UsageError(f"samples {keys}: fitted parameter vectors of different lengths in one batch")
+    zero = np.zeros_like(fits[0])
+    return {
+        "fit_params": torch.from_numpy(np.stack([s.get("fit_params", zero) for s in samples])),
+        "fit_valid": torch.tensor([bool(s.get("fit_valid", False)) for s in samples]),
+    }
+
+
 def collate(samples: list[dict]) -> dict[str, Any]:
     return {
         "images": torch.from_numpy(np.stack([s["images"] for s in samples])),
@@ -197,6 +316,7 @@ def collate(samples: list[dict]) -> dict[str, Any]:
             if "pair_images" in samples[0]
             else {}
         ),
+        **_collate_fit(samples),
     }
 
 
@@ -212,10 +332,11 @@ class ShardStream(IterableDataset):
         rank: int = 0,
         world: int = 1,
         flip_ok: bool = False,
+        mirror: ParamMirror | None = None,
     ):
         super().__init__()
         self.urls, self.settings, self.seed, self.train = list(urls), settings, seed, train
-        self.rank, self.world, self.flip_ok = rank, world, flip_ok
+        self.rank, self.world, self.flip_ok, self.mirror = rank, world, flip_ok, mirror
 
     def _slot(self) -> tuple[int, int]:
         info = get_worker_info()
@@ -267,7 +388,7 @@ class ShardStream(IterableDataset):
     def _decoded(self, raw: dict, rng: np.random.Generator) -> Iterator[dict]:
         """One decoded training sample, or nothing (with a warning) when the sample is bad."""
         try:
-            yield decode_sample(raw, self.settings, rng, True, self.flip_ok)
+            yield decode_sample(raw, self.settings, rng, True, self.flip_ok, self.mirror)
         except ModelError as exc:
             warnings.warn(f"skipping bad sample {exc}")
 
@@ -299,9 +420,11 @@ def make_loader(
     rank: int = 0,
     world: int = 1,
     flip_ok: bool = False,
+    mirror: ParamMirror | None = None,
 ) -> DataLoader:
-    """A DataLoader of collated batches; the training one is endless, the eval one a single pass."""
-    stream = ShardStream(shard_urls(dataset, category, split), settings, seed, train, rank, world, flip_ok)
+    """A DataLoader of collated batches; the training one is endless, the eval one a single pass.
+    ``mirror`` (``param_mirror``) mirrors the fit targets of flipped samples."""
+    stream = ShardStream(shard_urls(dataset, category, split), settings, seed, train, rank, world, flip_ok, mirror)
     return DataLoader(
         stream,
         batch_size=batch_size,

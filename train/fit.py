@@ -30,7 +30,7 @@ from torch.nn.parallel import DistributedDataParallel
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import SettingError, flag_name, from_dict, setting
-from train.data import DataSettings, make_loader, shard_framing, shard_urls
+from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
 from train.losses.contrast import info_nce
@@ -98,6 +98,11 @@ class FitSettings:
         "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
         "validate, keep and hand out the average instead of the training weights (0: off)",
     )
+    fit_anneal_steps: int = setting(
+        0,
+        "the fit term's weight falls linearly from --w-fit to 0 over this many steps, then stays 0 "
+        "(0: constant --w-fit; the term needs a --fit-patches dataset)",
+    )
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
@@ -114,7 +119,7 @@ class FitSettings:
             "log_every",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
@@ -338,6 +343,15 @@ def learning_rate(settings: FitSettings, step: int) -> float:
     return settings.lr * 0.5 * (1.0 + math.cos(math.pi * done))
 
 
+def step_weights(settings: FitSettings, step: int) -> LossWeights:
+    """The loss weights of step ``step`` (0-based): the fit term's falls linearly from its weight
+    at step 0 to 0 at ``fit_anneal_steps`` (a pure function of the step, so a resume continues it)."""
+    n = settings.fit_anneal_steps
+    if not n or not settings.weights.fit:
+        return settings.weights
+    return dataclasses.replace(settings.weights, fit=settings.weights.fit * max(0.0, 1.0 - step / n))
+
+
 def make_optimizer(model: torch.nn.Module, lr: float, device: torch.device) -> torch.optim.Optimizer:
     """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
     cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md)."""
@@ -469,6 +483,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         info.rank,
         info.world,
         template.symmetry is not None,
+        param_mirror(template) if settings.weights.fit else None,
     )
     logger = _Logger(out, start, info, settings) if info.is_main else None
     val_loader = None
@@ -485,12 +500,18 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
 
         bar = tqdm(total=settings.steps, initial=start, desc="fit", dynamic_ncols=True)
     stream = iter(loader)
+    first = next(stream) if settings.weights.fit and start < settings.steps else None
+    if first is not None and "fit_params" not in first:
+        raise UsageError(
+            f"{settings.dataset}: --w-fit needs fitted patches, and the {settings.category} shards have none "
+            "(build the dataset with --fit-patches)"
+        )
     net.train()
     last = None  # null in the result when no step runs (a resume already at --steps)
     kept = start if ckpt is not None else None  # the step checkpoint.pt holds
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
-        batch = next(stream)
+        batch, first = (first, None) if first is not None else (next(stream), None)
         gen = torch.Generator().manual_seed(derive_seed(settings.seed, "st", step) % (2**63))
         lr = learning_rate(settings, step)
         for group in optimizer.param_groups:
@@ -502,7 +523,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 objective,
                 batch,
                 objective.sample_st(gen),
-                settings.weights,
+                step_weights(settings, step),
                 info.device,
                 settings.contrast,
                 settings.clip_grad,

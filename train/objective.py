@@ -4,7 +4,8 @@ and template normals are computed once, then every batch calls ``batch_terms`` (
 Part structure reaches every term here: ``patch_mask`` turns patches of a model's absent optional
 parts off (and the template's closing patches for that part on), from the shard's
 ``present_parts``; ``groups`` splits Chamfer and normal terms by the template's ``part_groups``
-using the shard's per-point part labels."""
+using the shard's per-point part labels. A batch from a ``--fit-patches`` build also carries
+each model's fitted parameters, the fit term's target (its present patches' control points)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import torch
 from torch import Tensor
 
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
+from train.errors import UsageError
 from train.geometry.coons import evaluate_patches
 from train.geometry.patch_pairs import collision_pairs
 from train.losses.chamfer import Groups
@@ -89,9 +91,34 @@ class Objective:
         """(B, K) bool: symmetry pairs whose two points both belong to some present patch."""
         if mask is None or not self.sym.numel():
             return None
-        used = (mask.float() @ self.patch_points.to(mask.device).float()) > 0  # (B, N)
+        used = self.used_points(mask)
         sym = self.sym.to(mask.device)
         return used[:, sym[:, 0]] & used[:, sym[:, 1]]
+
+    def used_points(self, mask: Tensor) -> Tensor:
+        """(B, N) bool: template points some present patch depends on."""
+        return (mask.float() @ self.patch_points.to(mask.device).float()) > 0
+
+    def fit_targets(
+        self, batch: dict, mask: Tensor | None, device: torch.device
+    ) -> tuple[Tensor, Tensor] | tuple[None, None]:
+        """The fit term's inputs from a batch: the fitted control points (B, N, 3) and which count
+        (B, N) (present patches' points of items with a valid fit); (None, None) when the batch
+        has no valid fit target."""
+        fit = batch.get("fit_params")
+        if fit is None or not bool(batch["fit_valid"].any()):
+            return None, None
+        if fit.shape[-1] != self.template.num_params:
+            raise UsageError(
+                f"{batch['key'][0]}: fitted parameters have {fit.shape[-1]} values, template "
+                f"{self.template.name or '?'} has {self.template.num_params}: the dataset was fitted to another template"
+            )
+        with torch.no_grad():
+            points = self.template.points_from_params(fit.to(device))
+        used = self.patch_points.any(0).to(device)[None].expand(fit.shape[0], -1)
+        if mask is not None:
+            used = self.used_points(mask)
+        return points, used & batch["fit_valid"].to(device)[:, None]
 
     def batch_terms(
         self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, training: bool = True
@@ -100,14 +127,18 @@ class Objective:
         and normal-aware matching. Metrics use ``training=False``: the plain L_Ch (nearest points,
         no groups), comparable across templates and settings."""
         dev = params.device
+        mask = self.patch_mask(batch["meta"], dev)
+        fit_points, fit_weight = self.fit_targets(batch, mask, dev) if weights.fit else (None, None)
         return self.terms(
             params,
             batch["points"].to(dev),
             st,
-            self.patch_mask(batch["meta"], dev),
+            mask,
             weights,
             self.groups(batch, dev) if training else None,
             self.match_normals if training else 0.0,
+            fit_points,
+            fit_weight,
         )
 
     def terms(
@@ -119,9 +150,12 @@ class Objective:
         weights: LossWeights,
         groups: Groups | None = None,
         match_normals: float = 0.0,
+        fit_points: Tensor | None = None,
+        fit_weight: Tensor | None = None,
     ) -> dict[str, Tensor]:
         """Each term per batch item (B,) for network outputs ``params (B, D)`` and target
-        ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped."""
+        ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped. ``fit_points`` and
+        ``fit_weight`` (``fit_targets``) feed the fit term."""
         st = st.to(params.device)
         template_normals = None
         if weights.template_normal:
@@ -134,13 +168,17 @@ class Objective:
             weights,
             patch_mask=mask,
             template_normals=template_normals,
-            control_points=self.template.points_from_params(params) if self.sym.numel() else None,
+            control_points=self.template.points_from_params(params)
+            if self.sym.numel() or fit_points is not None
+            else None,
             symmetry_pairs=self.sym if self.sym.numel() else None,
             symmetry_valid=self.symmetry_valid(mask),
             plane_x=self.plane_x,
             collision=self.pairs,
             groups=groups,
             match_normals=match_normals,
+            fit_points=fit_points,
+            fit_weight=fit_weight,
         )
 
 

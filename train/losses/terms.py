@@ -22,6 +22,7 @@ from train.geometry.coons import PatchSamples, evaluate_patches
 from train.geometry.patch_pairs import CollisionPairs
 from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.collision import collision_loss
+from train.losses.fit_target import fit_target_loss
 from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
 
 
@@ -43,6 +44,8 @@ class TermInputs:
     collision: CollisionPairs | None = None
     groups: Groups | None = None
     match_normals: float = 0.0  # λ of normal-aware matching (0: nearest point, the paper's metric)
+    fit_points: Tensor | None = None  # (B, N, 3) the fit stage's control points (a --fit-patches build)
+    fit_weight: Tensor | None = None  # (B, N) which of them count (present patches, items with a fit)
 
     @functools.cached_property
     def ev(self) -> PatchSamples:
@@ -95,6 +98,12 @@ def _symmetry(x: TermInputs) -> Tensor | None:
     return symmetry_loss(x.control_points, x.symmetry_pairs, x.plane_x, x.symmetry_valid)
 
 
+def _fit(x: TermInputs) -> Tensor | None:
+    if x.control_points is None or x.fit_points is None or x.fit_weight is None:
+        return None
+    return fit_target_loss(x.control_points, x.fit_points, x.fit_weight)
+
+
 LOSS_TERMS: tuple[LossTerm, ...] = (
     LossTerm("chamfer", _chamfer, ablation=False),
     LossTerm("normal", _normal),
@@ -102,6 +111,7 @@ LOSS_TERMS: tuple[LossTerm, ...] = (
     LossTerm("collision", _collision),
     LossTerm("template_normal", _template_normal, regularizer=True),
     LossTerm("symmetry", _symmetry, regularizer=True),
+    LossTerm("fit", _fit, ablation=False),  # off by default (weight 0): --w-fit, a fitted dataset
 )
 
 

@@ -50,6 +50,8 @@ def loss_terms(
     collision: CollisionPairs | None = None,
     groups: Groups | None = None,
     match_normals: float = 0.0,
+    fit_points: Tensor | None = None,
+    fit_weight: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Each unweighted term of the loss per batch item ``(B,)``, keyed by ``TERMS`` (the term table,
     ``train.losses.terms``).
@@ -60,7 +62,9 @@ def loss_terms(
     ``template_normals`` are the template's normals at the same ``st``;
     ``control_points (B, N, 3)`` + ``symmetry_pairs (K, 2)`` feed the symmetry term;
     ``collision`` pairs feed the collision term; ``groups`` splits Chamfer and normal terms by
-    part group; ``match_normals`` > 0 pairs points by position and normal (``match_points``).
+    part group; ``match_normals`` > 0 pairs points by position and normal (``match_points``);
+    ``fit_points (B, N, 3)`` + ``fit_weight (B, N)`` (the fit stage's control points and which
+    count) feed the fit term, with ``control_points``.
     A term whose weight is 0 or whose inputs are
     missing is skipped (reported as 0), which is how ablations save time.
     """
@@ -78,6 +82,8 @@ def loss_terms(
         collision,
         groups,
         match_normals,
+        fit_points,
+        fit_weight,
     )
     zero = patches.new_zeros(patches.shape[0])
     terms: dict[str, Tensor] = {}

@@ -19,6 +19,7 @@ class LossWeights:
     collision: float = 1.0  # our L_coll is a penetration depth (docs/geometry.md), not the paper's indicator (1e-5)
     template_normal: float = 1e-4
     symmetry: float = 1.0
+    fit: float = 0.0  # not in the paper: pulls the control points to the fit stage's (--fit-patches)
 
 
 def only_term(name: str, weights: LossWeights | None = None) -> LossWeights:
