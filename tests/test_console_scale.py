@@ -88,7 +88,7 @@ def test_counts_match_a_full_recount_through_a_build(tmp_path: Path) -> None:
     assert fresh.counts()["prepare"] == (7, 20)
 
 
-def test_a_build_with_the_fit_stage_counts_it_between_prepare_and_render(tmp_path: Path) -> None:
+def test_a_build_with_the_fit_stage_counts_it(tmp_path: Path) -> None:
     root = _root(tmp_path, 10, fit_patches=True)
     s, listings = root.build, root.listings()
     ids = batch_task_ids(root, listings)
@@ -96,7 +96,7 @@ def test_a_build_with_the_fit_stage_counts_it_between_prepare_and_render(tmp_pat
     mug = listings[0]
     assert ids[_task(root, mug, FitBatch, 1).task_id] == ("fit", "mug", 1)
     counter = StageCounter(s, listings, ids)
-    assert list(counter.counts()) == ["prepare", "fit", "render", "augment", "shards"]
+    assert list(counter.counts()) == ["prepare", "render", "augment", "fit", "shards"]
     _finish(s, "fit", mug, 0)
     assert counter.counts() == stage_counts(s, listings)
     assert counter.counts()["fit"] == (4, 20)

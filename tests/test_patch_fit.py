@@ -77,6 +77,28 @@ def test_settings_checked() -> None:
         PatchFitSettings(templates=("knife",))
     with pytest.raises(ValueError, match="steps"):
         PatchFitSettings(steps=0)
+    with pytest.raises(ValueError, match="collision"):
+        PatchFitSettings(collision=-1.0)
+
+
+def test_the_collision_weight_reaches_the_fit(monkeypatch) -> None:
+    from train.objective import Objective
+    from train.patch_fit import Target, fit_targets
+    from train.templates import load_template
+
+    seen = []
+    real = Objective.batch_terms
+
+    def spy(self, params, batch, st, weights, training=True):
+        seen.append(weights.collision)
+        return real(self, params, batch, st, weights, training)
+
+    monkeypatch.setattr(Objective, "batch_terms", spy)
+    pts = np.random.default_rng(0).normal(size=(300, 6)).astype(np.float32)
+    tpl = load_template("sphere24")
+    fit_targets(tpl, [Target("a", pts)], PatchFitSettings(steps=2, points=300), 0, "x")
+    fit_targets(tpl, [Target("a", pts)], PatchFitSettings(steps=2, points=300, collision=3.0), 0, "x")
+    assert seen[:2] == [0.0, 0.0] and 3.0 in seen  # the fit's own steps carry the weight
 
 
 def test_fit_members_in_shards_read_by_webdataset(built: Path) -> None:

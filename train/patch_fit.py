@@ -114,7 +114,7 @@ def fit_targets(
     """The template fitted to every target at once (see the module's docstring)."""
     objective = Objective(template, settings.points, match_normals=template.match_normals)
     batch = _batch(targets)
-    weights = template_weights(template.regularizers, {"collision": 0.0})
+    weights = template_weights(template.regularizers, {"collision": settings.collision})
     start = template.initial_params()[None].expand(len(targets), -1).clone()
     params = start.clone().requires_grad_(True)
     opt = torch.optim.Adam([params], lr=settings.lr)

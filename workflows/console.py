@@ -34,7 +34,6 @@ from workflows.build_settings import BuildSettings
 from workflows.validate import BuildParameterError
 
 LOG_NAME = "luigi.log"
-STAGES = ("prepare", "render", "augment")
 FIRST_FAILURES = 5
 WIDTH = 100  # failure lines are wrapped at this width, never cut
 # Exit code of the `luigi` command when Luigi's pid lock turns it away ([retcode] already_running
@@ -54,8 +53,8 @@ STAGE_TASKS = {"prepare": "PrepareBatch", "fit": "FitBatch", "render": "RenderBa
 
 
 def build_stages(s: BuildSettings) -> tuple[str, ...]:
-    """The per-model stages this build runs, in the order the progress line shows them."""
-    return ("prepare", "fit", "render", "augment") if s.fit_patches else STAGES
+    """The per-model stages this build runs (its batch tasks), in the build's order."""
+    return tuple(stage for stage in s.stages() if stage in STAGE_TASKS)
 
 
 # A folder or file looked at less than this long after its last change is looked at again on the

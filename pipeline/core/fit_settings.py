@@ -13,11 +13,16 @@ from pipeline.core.settings_io import setting
 @dataclasses.dataclass(frozen=True)
 class PatchFitSettings:
     """How the template is fitted: Adam on its parameters against the model's surface samples,
-    the training loss without the collision term, parts masked as in training."""
+    the training loss (the collision term at ``collision``), parts masked as in training."""
 
     steps: int = setting(150, "Adam steps per model")
     lr: float = setting(0.01, "Adam learning rate")
     points: int = setting(4000, "target surface points per model: a seeded subset of prepare's samples")
+    collision: float = setting(
+        0.0,
+        "weight of the collision term in the fit (0: off, the cheapest; fits made without it may "
+        "cross themselves, and a network taught them with --w-fit learns the crossings)",
+    )
     templates: tuple[str, ...] = setting(
         (), "CATEGORY=TEMPLATE pairs (a category name, sphere24, sphere54 or a file); default: the category's own"
     )
@@ -27,6 +32,8 @@ class PatchFitSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"PatchFitSettings.{name} must be an integer >= {low}, got {value!r}")
+        if not self.collision >= 0:
+            raise ValueError(f"PatchFitSettings.collision must be >= 0, got {self.collision!r}")
         if not self.lr > 0:
             raise ValueError(f"PatchFitSettings.lr must be > 0, got {self.lr!r}")
         for item in self.templates:
