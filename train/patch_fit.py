@@ -59,7 +59,7 @@ from pipeline.core.schema import (
 from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import from_dict, setting
 from train.errors import UsageError
-from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
+from train.export.units import CadFileSettings
 from train.losses.total import weighted_sum
 from train.losses.weights import LossWeights, template_weights
 from train.objective import Objective
@@ -246,25 +246,13 @@ def _fit_alone(template: Template, target: Target, settings: PatchFitSettings, s
 
 
 @dataclasses.dataclass(frozen=True)
-class ExportFitSettings:
+class ExportFitSettings(CadFileSettings):
     """``python -m train export-fit``: one model's fitted patches as CAD files and meshes."""
 
     dataset: str = setting(help="dataset folder built with --fit-patches")
     category: str = setting(help="the model's category")
     model: str = setting(help="the model's id (meta.json's model_id, e.g. 00003)")
     out: str = setting(help="output folder")
-    units: str = setting(
-        DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
-    )
-    scale: float | None = setting(
-        None, f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)"
-    )
-
-    def cad_units(self) -> CadUnits:
-        try:
-            return CadUnits(self.units, self.scale)
-        except ValueError as exc:
-            raise UsageError(f"--units/--scale: {exc}") from None
 
 
 def read_fit(dataset: str | Path, category: str, model_id: str) -> tuple[np.ndarray, dict, Path]:

@@ -30,7 +30,7 @@ from train.export.kernel_check import KernelVerdict, solid_verdict
 from train.export.obj import edge_report, write_obj
 from train.export.quadmesh import quad_mesh
 from train.export.step import write_step
-from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
+from train.export.units import CadFileSettings, CadUnits
 from train.fit import TrainedRun, load_run
 from train.geometry.intersections import Intersections, mesh_intersections
 from train.sketch_input import Framing, SketchError, normalize_sketch
@@ -42,7 +42,7 @@ SHIPPED_PARTS = "airplane engine; bathtub faucet; car spoiler; gun magazine, sco
 
 
 @dataclasses.dataclass(frozen=True)
-class PredictSettings:
+class PredictSettings(CadFileSettings):
     """``python -m train predict``: one flag per field."""
 
     checkpoint: str = setting(help="checkpoint.pt or best.pt of a run")
@@ -56,12 +56,6 @@ class PredictSettings:
         f"checkpoint's parts (shipped templates: {SHIPPED_PARTS}); a wrong name is an error listing them",
     )
     list_parts: bool = setting(False, "print the optional parts of the checkpoint's template and exit")
-    units: str = setting(
-        DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
-    )
-    scale: float | None = setting(
-        None, f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)"
-    )
     json: bool = setting(False, "print the result as JSON on stdout (it is always written to OUT/prediction.json)")
 
     def parts(self) -> dict[str, bool]:
@@ -73,12 +67,6 @@ class PredictSettings:
                 raise UsageError(f"--part {item}: use NAME=on or NAME=off")
             out[name] = state == "on"
         return out
-
-    def cad_units(self) -> CadUnits:
-        try:
-            return CadUnits(self.units, self.scale)
-        except ValueError as exc:
-            raise UsageError(f"--units/--scale: {exc}") from None
 
 
 def template_parts(template: Template) -> dict[str, dict[str, int]]:

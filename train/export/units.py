@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from pipeline.core.settings_io import setting
+from train.errors import UsageError
+
 MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 DEFAULT_UNITS = "mm"
 DEFAULT_MODEL_UNIT_MM = 100.0
@@ -50,3 +53,22 @@ class CadUnits:
 
     def describe(self) -> dict:
         return {"units": self.units, "scale": self.factor, "mm_per_model_unit": self.mm}
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class CadFileSettings:
+    """The ``--units`` / ``--scale`` flags of every command that writes CAD files (predict,
+    export-fit, serve): subclass it, and ``cad_units()`` gives the checked ``CadUnits``."""
+
+    units: str = setting(
+        DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
+    )
+    scale: float | None = setting(
+        None, f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)"
+    )
+
+    def cad_units(self) -> CadUnits:
+        try:
+            return CadUnits(self.units, self.scale)
+        except ValueError as exc:
+            raise UsageError(f"--units/--scale: {exc}") from None

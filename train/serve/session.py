@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.core.atomic import write_bytes
 from pipeline.core.settings_io import setting
 from train.errors import UsageError
-from train.export.units import DEFAULT_MODEL_UNIT_MM, DEFAULT_UNITS, MM_PER_UNIT, CadUnits
+from train.export.units import CadFileSettings, CadUnits
 from train.fit import TrainedRun, load_run
 from train.predict import predict_run, verdict_line
 from train.serve.view_mesh import write_view_glb
@@ -38,7 +38,7 @@ _MAGIC = {b"\x89PNG": ".png", b"\xff\xd8\xff": ".jpg", b"RIFF": ".webp", b"II*\x
 
 
 @dataclasses.dataclass(frozen=True)
-class ServeSettings:
+class ServeSettings(CadFileSettings):
     """``python -m train serve``: one flag per field."""
 
     checkpoint: tuple[str, ...] = setting(
@@ -47,18 +47,6 @@ class ServeSettings:
     host: str = setting("127.0.0.1", "address to listen on; 127.0.0.1 keeps the page to this machine")
     port: int = setting(7860, "port to listen on")
     out: str = setting("serve-out", "folder of the predictions, one subfolder per request")
-    units: str = setting(
-        DEFAULT_UNITS, f"length unit declared in patches.stp / patches.igs: {', '.join(sorted(MM_PER_UNIT))}"
-    )
-    scale: float | None = setting(
-        None, f"CAD file units per model unit (default: {DEFAULT_MODEL_UNIT_MM:g} mm in --units, ~20 cm across)"
-    )
-
-    def cad_units(self) -> CadUnits:
-        try:
-            return CadUnits(self.units, self.scale)
-        except ValueError as exc:
-            raise UsageError(f"--units/--scale: {exc}") from None
 
 
 @dataclasses.dataclass(frozen=True)
