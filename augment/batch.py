@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from augment.metrics import stroke_scores
+from augment.metrics import stroke_scores_at
 from augment.settings import AugmentSettings
 from augment.variants import view_variants
 from augment.vectorize import VectorizeError, vectorize
@@ -24,6 +24,7 @@ from pipeline.core.atomic import read_json, write_json
 from pipeline.core.errors import ModelError
 from pipeline.core.images import save_png
 from pipeline.core.model_loop import ModelJob, run_models
+from pipeline.core.points_text import RoundedPoints
 from pipeline.core.records import Progress, read_record
 from pipeline.core.schema import STROKES_FILE, VIEW_GLOB, sketch_name, view_index
 
@@ -58,17 +59,6 @@ def _captured(render_dir: Path) -> list | None:
         return None  # quality data only: a broken file must not fail the model
 
 
-def _round(strokes: list[np.ndarray]) -> list:
-    """Strokes as lists of [u, v] rounded to 0.01 px; rounded in one array (elementwise, so the
-    same numbers as stroke by stroke, at a fraction of the per-call cost)."""
-    arrays = [np.asarray(s, np.float64) for s in strokes]
-    if not arrays or any(a.ndim != 2 or a.shape[1] != 2 for a in arrays):
-        return [np.round(a, 2).tolist() for a in arrays]
-    points = np.round(np.concatenate(arrays), 2).tolist()
-    ends = np.cumsum([len(a) for a in arrays]).tolist()
-    return [points[e - len(a) : e] for a, e in zip(arrays, ends)]
-
-
 def augment_model(
     category: str, model_id: str, render_dir: Path, out_dir: Path, settings: AugmentSettings, seed: int
 ) -> dict:
@@ -99,8 +89,7 @@ def augment_model(
         q: dict = {"view": view, "n_strokes": len(strokes)}
         if captured is not None and view < len(captured):
             ref = [np.asarray(s["points"], np.float64) for s in captured[view] if len(s["points"])]
-            s2 = stroke_scores(strokes, ref, w, tol=2.0)
-            s1 = stroke_scores(strokes, ref, w, tol=1.0)
+            s2, s1 = stroke_scores_at(strokes, ref, w, (2.0, 1.0))
             q.update(
                 precision=s2["precision"],
                 recall=s2["recall"],
@@ -117,12 +106,16 @@ def augment_model(
             {
                 "view": view,
                 "variants": [
-                    {"variant": k, "width": round(var.width, 4), "strokes": _round(var.strokes)}
+                    {"variant": k, "width": round(var.width, 4), "strokes": RoundedPoints(var.strokes, 2)}
                     for k, var in enumerate(variants)
                 ],
             }
         )
-    write_json(Path(out_dir) / STROKES_FILE, {"out_size": settings.out_size, "source_size": w, "views": doc_views})
+    write_json(
+        Path(out_dir) / STROKES_FILE,
+        {"out_size": settings.out_size, "source_size": w, "views": doc_views},
+        compact=True,
+    )
     f1s = [q["f1"] for q in quality if "f1" in q]
     return {
         "category": category,

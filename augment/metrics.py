@@ -29,25 +29,39 @@ def rasterize_thin(strokes: list[np.ndarray], size: int | tuple[int, int]) -> np
 
 def ink_scores(pred: np.ndarray, ref: np.ndarray, tol: float = 2.0) -> dict:
     """precision / recall / F1 of two boolean ink masks with a pixel-distance tolerance."""
+    return ink_scores_at(pred, ref, (tol,))[0]
+
+
+def ink_scores_at(pred: np.ndarray, ref: np.ndarray, tols: tuple[float, ...]) -> list[dict]:
+    """:func:`ink_scores` at each tolerance of ``tols``, from one pair of distance transforms."""
     if pred.shape != ref.shape:
         raise ValueError(f"mask shapes differ: {pred.shape} vs {ref.shape}")
     n_pred, n_ref = int(pred.sum()), int(ref.sum())
     if n_pred == 0 and n_ref == 0:
-        return {"precision": 1.0, "recall": 1.0, "f1": 1.0, "tol": tol}
+        return [{"precision": 1.0, "recall": 1.0, "f1": 1.0, "tol": tol} for tol in tols]
     if n_pred == 0 or n_ref == 0:
-        return {"precision": float(n_pred == 0), "recall": float(n_ref == 0), "f1": 0.0, "tol": tol}
-    dist_to_ref = cv2.distanceTransform((~ref).astype(np.uint8), cv2.DIST_L2, 5)
-    dist_to_pred = cv2.distanceTransform((~pred).astype(np.uint8), cv2.DIST_L2, 5)
-    precision = float((dist_to_ref[pred] <= tol).mean())
-    recall = float((dist_to_pred[ref] <= tol).mean())
-    f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
-    return {"precision": precision, "recall": recall, "f1": f1, "tol": tol}
+        return [{"precision": float(n_pred == 0), "recall": float(n_ref == 0), "f1": 0.0, "tol": tol} for tol in tols]
+    to_ref = cv2.distanceTransform((~ref).astype(np.uint8), cv2.DIST_L2, 5)[pred]
+    to_pred = cv2.distanceTransform((~pred).astype(np.uint8), cv2.DIST_L2, 5)[ref]
+    out = []
+    for tol in tols:
+        precision = float((to_ref <= tol).mean())
+        recall = float((to_pred <= tol).mean())
+        f1 = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+        out.append({"precision": precision, "recall": recall, "f1": f1, "tol": tol})
+    return out
 
 
 def stroke_scores(pred: list[np.ndarray], ref: list[np.ndarray], size: int | tuple[int, int], tol: float = 2.0) -> dict:
     """Scores of vector strokes against reference vector strokes (e.g. Freestyle's), plus the
     stroke-count ratio pred / ref."""
-    out = ink_scores(rasterize_thin(pred, size), rasterize_thin(ref, size), tol)
-    out["n_pred"], out["n_ref"] = len(pred), len(ref)
-    out["count_ratio"] = len(pred) / len(ref) if ref else float("inf") if pred else 1.0
-    return out
+    return stroke_scores_at(pred, ref, size, (tol,))[0]
+
+
+def stroke_scores_at(
+    pred: list[np.ndarray], ref: list[np.ndarray], size: int | tuple[int, int], tols: tuple[float, ...]
+) -> list[dict]:
+    """:func:`stroke_scores` at each tolerance of ``tols``, the strokes rasterized once."""
+    count_ratio = len(pred) / len(ref) if ref else float("inf") if pred else 1.0
+    scores = ink_scores_at(rasterize_thin(pred, size), rasterize_thin(ref, size), tols)
+    return [{**sc, "n_pred": len(pred), "n_ref": len(ref), "count_ratio": count_ratio} for sc in scores]

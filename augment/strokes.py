@@ -15,9 +15,11 @@ from augment.settings import AugmentSettings
 Strokes = list[np.ndarray]
 
 
-def cut(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
-    """The part of a polyline between arc lengths s0 < s1, with interpolated end points."""
-    s = cumulative_length(points)
+def cut(points: np.ndarray, s0: float, s1: float, s: np.ndarray | None = None) -> np.ndarray:
+    """The part of a polyline between arc lengths s0 < s1, with interpolated end points; ``s``:
+    its ``cumulative_length`` when the caller has it (a stroke cut several times)."""
+    if s is None:
+        s = cumulative_length(points)
     s0, s1 = max(0.0, s0), min(float(s[-1]), s1)
     inner = points[(s > s0) & (s < s1)]
     # both ends in one interp per axis (the same per-element interpolation as scalar calls)
@@ -26,6 +28,11 @@ def cut(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
     out[[0, -1], 1] = np.interp((s0, s1), s, points[:, 1])
     out[1:-1] = inner
     return out
+
+
+def _length(arc: np.ndarray) -> float:
+    """``polyline_length`` of a stroke from its ``cumulative_length``."""
+    return float(arc[-1]) if len(arc) > 1 else 0.0
 
 
 def resample_strokes(strokes: Strokes, spacing: float) -> Strokes:
@@ -73,7 +80,8 @@ def split(
         k = int(rng.integers(1, max_points + 1))
         where = rng.random(k)
         gaps = rng.uniform(gap[0], gap[1], k)
-        length = polyline_length(s)
+        arc = cumulative_length(s)
+        length = _length(arc)
         if u >= prob or length < 2 * min_piece + gap[1]:
             out.append(s)
             continue
@@ -82,9 +90,9 @@ def split(
             c = min_piece + t * (length - 2 * min_piece - g)
             if c - start < min_piece or length - (c + g) < min_piece:
                 continue
-            out.append(cut(s, start, c))
+            out.append(cut(s, start, c, arc))
             start = c + g
-        out.append(cut(s, start, length))
+        out.append(cut(s, start, length, arc))
     return out
 
 
@@ -94,11 +102,12 @@ def truncate(strokes: Strokes, rng: np.random.Generator, prob: float, max_fracti
     for s in strokes:
         u = rng.random(2)
         f = rng.random(2)
-        length = polyline_length(s)
+        arc = cumulative_length(s)
+        length = _length(arc)
         limit = min(max_fraction * length, max_px)
         a = f[0] * limit if u[0] < prob else 0.0
         b = f[1] * limit if u[1] < prob else 0.0
-        out.append(cut(s, a, length - b) if a > 0 or b > 0 else s)
+        out.append(cut(s, a, length - b, arc) if a > 0 or b > 0 else s)
     return out
 
 
@@ -109,11 +118,12 @@ def extend(strokes: Strokes, rng: np.random.Generator, prob: float, max_px: floa
         u = rng.random(2)
         f = rng.random(2)
         pts = s
-        length = polyline_length(s)
+        arc = cumulative_length(s)
+        length = _length(arc)
         for end in (0, 1):
             if u[end] >= prob or length < 2.0:
                 continue
-            inner = cut(s, 0.0, min(3.0, length)) if end == 0 else cut(s, max(0.0, length - 3.0), length)
+            inner = cut(s, 0.0, min(3.0, length), arc) if end == 0 else cut(s, max(0.0, length - 3.0), length, arc)
             tip, base = (inner[0], inner[-1]) if end == 0 else (inner[-1], inner[0])
             d = tip - base
             d = d / max(np.linalg.norm(d), 1e-9)
@@ -178,10 +188,11 @@ def overdraw(strokes: Strokes, rng: np.random.Generator, prob: float, max_copies
         starts = rng.random(k)
         if u >= prob or len(s) < 2:
             continue
-        length = polyline_length(s)
+        arc = cumulative_length(s)
+        length = _length(arc)
         for d, span, st in zip(shifts, spans, starts):
             a = st * (1.0 - span) * length
-            out.append(cut(s, a, a + span * length) + d)
+            out.append(cut(s, a, a + span * length, arc) + d)
     return out
 
 

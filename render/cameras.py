@@ -57,14 +57,20 @@ def look_at(eye: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
     up = np.array([0.0, 1.0, 0.0])
     if abs(forward @ up) > 0.999:  # looking straight down/up: let image-up point to the back (+z)
         up = np.array([0.0, 0.0, 1.0 if forward[1] < 0 else -1.0])
-    right = np.cross(forward, up)
+    right = _cross(forward, up)
     right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
+    down = _cross(forward, right)
     R = np.stack([right, down, forward])
     M = np.eye(4)
     M[:3, :3] = R
     M[:3, 3] = -R @ eye
     return M
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two 3-vectors, the same products and differences (identical floats),
+    without its axis handling (~10 µs a call, 72 calls a model with the representative rig)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def intrinsics(settings: RenderSettings) -> np.ndarray:

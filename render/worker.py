@@ -158,7 +158,7 @@ def render_model(
         view_times.append(round(time.perf_counter() - t, 4))
         view_cpu.append(round(time.process_time() - c, 4))
     write_json(out / CAMERAS_FILE, {"image_size": settings.image_size, "views": [v.to_json() for v in views]})
-    write_json(out / STROKES_FILE, {"image_size": settings.image_size, "views": strokes_per_view})
+    write_json(out / STROKES_FILE, {"image_size": settings.image_size, "views": strokes_per_view}, compact=True)
     return dict(
         category=category,
         model_id=model_id,
@@ -223,7 +223,7 @@ def _run_job(job: dict, scratch: Path) -> int:
         recorder.install()
         ready = "blender ready"
     else:
-        import render.edge_lines  # noqa: F401  (start-up: scipy, embreex)
+        import render.edge_lines  # noqa: F401  (start-up, not model time)
 
         ready = f"{settings.backend} backend ready"
     items = job["items"]

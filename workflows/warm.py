@@ -32,6 +32,10 @@ def warm_stage_code() -> None:
     from augment.pencil import draw_pencil
 
     draw_pencil([np.array([[4.0, 4.0], [20.0, 12.0]]), np.array([[8.0, 30.0]])], 32, 1.0, np.random.default_rng(0))
+    # and the stroke files' compiled number writer (pipeline.core.points_text)
+    from pipeline.core.points_text import points_json
+
+    points_json([np.array([[1.25, -2.0]])], 2)
     # The imports leave ~225k long-lived objects that every full collection would scan again while
     # the stages allocate millions of small ones (stroke points, JSON lists); frozen, they are
     # skipped (augment + shards 0.62 -> 0.56 core-s per model, BENCHMARKS.md). Forked task children

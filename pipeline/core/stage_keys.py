@@ -27,8 +27,9 @@ def settings_hash(settings: Any, upstream: str = "", length: int = 10) -> str:
 # What each stage's code writes, numbered. Bump a stage's number with any change to its code that
 # changes its outputs: its folder and every downstream one get new keys, so a work folder from
 # older code is never taken for current outputs (settings alone cannot tell them apart).
-# prepare 5: binary PLY sources, recorded failed by version 4, build.
-STAGE_VERSIONS = {"source": 3, "prepare": 5, "render": 2, "augment": 3, "shards": 2, "fit": 1}
+# prepare 5: binary PLY sources, recorded failed by version 4, build. render 3, augment 4: PNGs
+# written with zlib's run-length strategy, strokes.json without white space (same pixels, points).
+STAGE_VERSIONS = {"source": 3, "prepare": 5, "render": 3, "augment": 4, "shards": 2, "fit": 1}
 
 
 def stage_key(stage: str, settings: Any, upstream: str = "") -> str:

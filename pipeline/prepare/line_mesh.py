@@ -46,8 +46,30 @@ def line_mesh(
     # meaningful also for nearly-closed parts); Freestyle's creases use the face normals.
     if not mesh.is_winding_consistent:
         mesh = _wound_coherently(mesh)
-    trimesh.repair.fix_inversion(mesh, multibody=True)
+    _turn_bodies_outward(mesh)
     return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+
+
+def _turn_bodies_outward(mesh: trimesh.Trimesh) -> None:
+    """``trimesh.repair.fix_inversion(mesh, multibody=True)``: the faces of every closed,
+    consistently wound body with negative volume flipped, in place. The same bodies, tests and
+    volume (the first term of trimesh's mass properties, summed the same way), without the nine
+    inertia terms trimesh computes and drops (~2/3 of its time)."""
+    groups = trimesh.graph.connected_components(mesh.face_adjacency)
+    tri, cross = mesh.triangles, mesh.triangles_cross
+    face_edges = mesh.edges.reshape((-1, 6))
+    flip = np.zeros(len(mesh.faces), bool)
+    for face_index in groups:
+        if len(face_index) < 4:  # no closed body has fewer faces than a tetrahedron
+            continue
+        tight, wound = trimesh.graph.is_watertight(face_edges[face_index].reshape((-1, 2)))
+        if not (tight and wound):
+            continue
+        t = tri[face_index]
+        if (cross[face_index, 0] * (t[:, 0, 0] + t[:, 1, 0] + t[:, 2, 0])).sum() / 6.0 < 0.0:
+            flip[face_index] = True
+    if flip.any():
+        mesh.faces[flip] = np.fliplr(mesh.faces[flip])
 
 
 def _wound_coherently(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
