@@ -19,7 +19,10 @@ sees the overlaps a model in training makes, not the crossing-free template.
 Usage: OMP_NUM_THREADS=1 taskset -c 1 .venv/bin/python bench/bench_step_profile.py
        [--dataset DS --category airplane] [--template airplane] [--steps 10] [--batch-size 8]
        [--max-views 1] [--threads 1] [--image-size 128] [--encoder-width 64] [--json OUT]
-Without --dataset it writes fixture shards (boxes) to a temporary folder.
+       [--torch-profile TABLE.txt]
+Without --dataset it writes fixture shards (boxes) to a temporary folder. ``--torch-profile``
+runs one more real step (after the timed ones) under torch.profiler and writes its operator
+table (``key_averages``, sorted by self CPU time) to the file given.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from train.data import DataSettings, make_loader  # noqa: E402
-from train.fit import clip_gradient, make_optimizer, train_step  # noqa: E402
+from train.fit import DivergenceGuard, clip_gradient, make_optimizer, train_step  # noqa: E402
 from train.losses.terms import LOSS_TERMS, TermInputs  # noqa: E402
 from train.losses.total import weighted_sum  # noqa: E402
 from train.losses.weights import template_weights  # noqa: E402
@@ -64,25 +67,27 @@ def _split_step(net, optimizer, objective: Objective, batch: dict, st, weights, 
     params = net(batch["images"], batch["view_mask"])["params"]
     tick("encoder + head forward")
     dev = params.device
+    on = objective.resident(dev)  # the template's constants, made once per device
     tn = None
     if weights.template_normal:
         from train.geometry.coons import evaluate_patches
 
-        tn = evaluate_patches(objective.template_patches, st).normals[0]
+        tn = evaluate_patches(on.template_patches, st).normals[0]
     mask = objective.patch_mask(batch["meta"], dev)
-    sym = objective.sym if objective.sym.numel() else None
+    sym = on.sym if on.sym.numel() else None
+    patches, points = objective.template.patches_and_points(params)
     x = TermInputs(
-        objective.template.patches_from_params(params),
+        patches,
         st,
         batch["points"][..., :3],
         batch["points"][..., 3:],
         mask,
         tn,
-        objective.template.points_from_params(params) if sym is not None else None,
+        points if sym is not None else None,
         sym,
         objective.symmetry_valid(mask),
         objective.plane_x,
-        objective.pairs,
+        on.pairs,
         objective.groups(batch, dev),
     )
     tick("loss inputs (masks, groups, template normals)")
@@ -117,6 +122,7 @@ def profile(
     noise: float,
     image_size: int,
     width: int,
+    torch_profile: str | None = None,
 ) -> dict[str, float]:
     tpl = load_template(template)
     weights = template_weights(tpl.regularizers)
@@ -127,6 +133,7 @@ def profile(
     data = DataSettings(max_views=views, image_size=image_size)
     loader = iter(make_loader(dataset, category, "train", data, 0, batch, 0, True))
     gen = torch.Generator().manual_seed(0)
+    guard = DivergenceGuard(torch.device("cpu"))  # fit's non-finite check (kept on the device)
     times: dict[str, list[float]] = {}
     clock = [0.0]
 
@@ -142,14 +149,30 @@ def profile(
         st = objective.sample_st(gen)
         seed = 1000 + i
         t0 = time.process_time()
-        train_step(_Noisy(model, noise, seed), optimizer, objective, b, st, weights, torch.device("cpu"))
+        train_step(_Noisy(model, noise, seed), optimizer, objective, b, st, weights, torch.device("cpu"), guard=guard)
         times.setdefault("REAL STEP (train_step)", []).append(time.process_time() - t0)
         clock[0] = time.process_time()
         _split_step(_Noisy(model, noise, seed), optimizer, objective, b, st, weights, tick)
+    if torch_profile:
+        b = next(loader)
+        _profile_one_step(Path(torch_profile), _Noisy(model, noise, 9999), optimizer, objective, b, weights, gen, guard)
     med = {k: statistics.median(v[1:]) for k, v in times.items()}
     parts = [k for k in med if not k.startswith(("REAL", "data"))]
     med["sum of the parts"] = sum(med[k] for k in parts)
     return med
+
+
+def _profile_one_step(path: Path, net, optimizer, objective: Objective, batch: dict, weights, gen, guard) -> None:
+    """One real step under torch.profiler (CPU activity): its operators by self CPU time to ``path``
+    (the numba grid search of the matching runs outside torch: in the step's time, not the table's)."""
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profiler
+
+    st = objective.sample_st(gen)
+    with torch_profiler(activities=[ProfilerActivity.CPU]) as prof:
+        train_step(net, optimizer, objective, batch, st, weights, torch.device("cpu"), guard=guard)
+    table = prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=40)
+    path.write_text(f"one train_step, torch.profiler, sorted by self CPU time\n{table}\n")
 
 
 def main() -> None:
@@ -165,6 +188,9 @@ def main() -> None:
     ap.add_argument("--image-size", type=int, default=DataSettings.image_size)
     ap.add_argument("--encoder-width", type=int, default=64)
     ap.add_argument("--json", default=None, help="also write the medians here")
+    ap.add_argument(
+        "--torch-profile", default=None, metavar="PATH", help="write torch.profiler's table of one more step here"
+    )
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     with tempfile.TemporaryDirectory() as tmp:
@@ -174,7 +200,18 @@ def main() -> None:
                 str(write_fixture_shards(Path(tmp) / "ds", counts={"train": 16, "val": 2, "test": 2}, size=128)),
                 "knife",
             )
-        med = profile(ds, cat, a.template, a.steps, a.batch_size, a.max_views, a.noise, a.image_size, a.encoder_width)
+        med = profile(
+            ds,
+            cat,
+            a.template,
+            a.steps,
+            a.batch_size,
+            a.max_views,
+            a.noise,
+            a.image_size,
+            a.encoder_width,
+            a.torch_profile,
+        )
     head = (
         f"template={a.template} batch={a.batch_size} views<={a.max_views} threads={a.threads} noise={a.noise} "
         f"image={a.image_size} encoder_width={a.encoder_width} steps={a.steps}"

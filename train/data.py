@@ -421,9 +421,11 @@ def make_loader(
     world: int = 1,
     flip_ok: bool = False,
     mirror: ParamMirror | None = None,
+    pin_memory: bool = False,
 ) -> DataLoader:
     """A DataLoader of collated batches; the training one is endless, the eval one a single pass.
-    ``mirror`` (``param_mirror``) mirrors the fit targets of flipped samples."""
+    ``mirror`` (``param_mirror``) mirrors the fit targets of flipped samples. ``pin_memory``: batches
+    in page-locked memory (a GPU run: the step's copies to the device then need not wait)."""
     stream = ShardStream(shard_urls(dataset, category, split), settings, seed, train, rank, world, flip_ok, mirror)
     return DataLoader(
         stream,
@@ -432,4 +434,5 @@ def make_loader(
         collate_fn=collate,
         drop_last=train,
         persistent_workers=False,
+        pin_memory=pin_memory,
     )

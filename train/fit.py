@@ -303,16 +303,17 @@ def validation_chamfer(model: SketchToPatches, loader, objective: Objective, dev
     """Mean L_Ch over a split (one view, fixed sample grid): the number model selection uses."""
     was_training = model.training
     model.eval()
-    total, count = 0.0, 0
+    count = 0
     weights = only_term("chamfer")
     st = objective.sample_st(None)
+    total = torch.zeros((), dtype=torch.float64, device=device)  # summed on the device: one read at the end
     for batch in loader:
-        params = model(batch["images"].to(device), batch["view_mask"].to(device))
+        params = model(batch["images"].to(device, non_blocking=True), batch["view_mask"])  # mask read on the host
         terms = objective.batch_terms(params, batch, st, weights, training=False)
-        total += float(terms["chamfer"].sum())
+        total = total + terms["chamfer"].sum().double()
         count += params.shape[0]
     model.train(was_training)
-    return total / max(count, 1)
+    return float(total) / max(count, 1)
 
 
 def _best_so_far(out: Path, start: int) -> float:
@@ -368,6 +369,59 @@ def clip_gradient(net: torch.nn.Module, limit: float) -> torch.Tensor:
     return norm
 
 
+class Diverged(FloatingPointError):
+    """A step's loss or gradient norm was not finite; ``step`` is that step (1-based)."""
+
+    def __init__(self, step: int, loss: float, grad_norm: float):
+        super().__init__(_not_finite(loss, grad_norm))
+        self.step = step
+
+
+def _not_finite(loss: float, grad_norm: float) -> str:
+    return f"the loss is {loss:g} and the gradient norm {grad_norm:g}"
+
+
+class DivergenceGuard:
+    """``train_step``'s non-finite check without a read-back per step.
+
+    The check stays on the device: a step whose loss or gradient norm is not finite sets a flag
+    there, and the fused Adam update reads that flag there (``found_inf``, as for a gradient
+    scaler) and leaves weights and moments untouched, that step and every later one, so the
+    weights stay the last finite ones. ``check`` reads the flag, once, where the run reads values
+    back anyway (a log row, validation, a checkpoint) and raises :class:`Diverged` naming the
+    first bad step, its loss and gradient norm. Steps are counted from ``first_step`` (the
+    0-based step the run starts at)."""
+
+    def __init__(self, device: torch.device, first_step: int = 0):
+        self.steps = first_step  # steps seen so far (a host counter: no read-back)
+        self.bad = torch.zeros((), dtype=torch.bool, device=device)  # a step so far was not finite
+        self.first = torch.zeros((), dtype=torch.long, device=device)  # the first such step, 1-based
+        self.loss = torch.zeros((), device=device)  # its loss and gradient norm, for the message
+        self.grad_norm = torch.zeros((), device=device)
+
+    @staticmethod
+    def supports(optimizer: torch.optim.Optimizer) -> bool:
+        """Whether ``optimizer`` can skip its update on the device (the fused Adam of
+        ``make_optimizer`` on CPU and CUDA); with another, ``train_step`` checks on the host."""
+        return bool(getattr(optimizer, "_step_supports_amp_scaling", False)) and bool(optimizer.defaults.get("fused"))
+
+    def update(self, optimizer: torch.optim.Optimizer, finite: torch.Tensor, loss: torch.Tensor, norm: torch.Tensor):
+        """Record one step's verdict ``finite`` and take the update unless a step so far failed."""
+        self.steps += 1
+        new = ~finite & ~self.bad
+        self.first = torch.where(new, self.steps, self.first)
+        self.loss = torch.where(new, loss.detach().float(), self.loss)
+        self.grad_norm = torch.where(new, norm.detach().float(), self.grad_norm)
+        self.bad = self.bad | ~finite
+        optimizer.found_inf = self.bad.float()  # 1: the fused kernel returns before touching anything
+        optimizer.step()
+
+    def check(self) -> None:
+        """Raise :class:`Diverged` if a step so far was not finite (one read-back)."""
+        if bool(self.bad):
+            raise Diverged(int(self.first), float(self.loss), float(self.grad_norm))
+
+
 def train_step(
     net: torch.nn.Module,
     optimizer: torch.optim.Optimizer,
@@ -378,6 +432,7 @@ def train_step(
     device: torch.device,
     contrast: float = 0.0,
     clip_grad: float = 0.0,
+    guard: DivergenceGuard | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -387,9 +442,16 @@ def train_step(
     it (under DDP the gradients are already averaged over ranks here, so every rank clips alike).
     A loss or gradient that is not finite raises FloatingPointError before the update, so the
     weights stay the last finite ones (the averaged gradient's norm is the same on every rank,
-    so under DDP all ranks stop at the same step)."""
-    pair = batch["pair_images"].to(device) if contrast > 0 else None
-    out = net(batch["images"].to(device), batch["view_mask"].to(device), pair)
+    so under DDP all ranks stop at the same step). With a ``guard`` (``fit``'s, when the optimizer
+    supports it) the step reads nothing back from the device: the guard skips the update on the
+    device instead and ``guard.check()`` raises later, naming the step.
+
+    Host round trips: none on a GPU but the collision term's culling (``train.losses.collision``);
+    the loss and terms come back as device tensors (``fit`` reads them every ``--log-every``)."""
+    # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
+    # on a GPU run), and the view mask stays on the host: the encoder reads it there
+    pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
+    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
     if contrast > 0:
@@ -399,10 +461,11 @@ def train_step(
     loss.backward()
     terms["grad_norm"] = clip_gradient(net, clip_grad)
     finite = torch.isfinite(loss.detach()) & torch.isfinite(terms["grad_norm"])
-    if not bool(finite):  # one scalar read per step (the progress bar reads the loss anyway)
-        raise FloatingPointError(
-            f"the loss is {float(loss.detach()):g} and the gradient norm {float(terms['grad_norm']):g}"
-        )
+    if guard is not None and guard.supports(optimizer):
+        guard.update(optimizer, finite, loss, terms["grad_norm"])
+        return loss, terms
+    if not bool(finite):  # without a guard: one scalar read per step
+        raise FloatingPointError(_not_finite(float(loss.detach()), float(terms["grad_norm"])))
     optimizer.step()
     return loss, terms
 
@@ -484,6 +547,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         info.world,
         template.symmetry is not None,
         param_mirror(template) if settings.weights.fit else None,
+        pin_memory=info.device.type == "cuda",
     )
     logger = _Logger(out, start, info, settings) if info.is_main else None
     val_loader = None
@@ -509,6 +573,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     net.train()
     last = None  # null in the result when no step runs (a resume already at --steps)
     kept = start if ckpt is not None else None  # the step checkpoint.pt holds
+    guard = DivergenceGuard(info.device, start)  # the non-finite check, read where the loop reads anyway
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch, first = (first, None) if first is not None else (next(stream), None)
@@ -516,6 +581,12 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         lr = learning_rate(settings, step)
         for group in optimizer.param_groups:
             group["lr"] = lr
+        done = step + 1
+        # the same on every rank, unlike ``val`` (rank 0 only): the logging branch below holds
+        # collectives, and a rank entering it alone would wait for the others forever
+        val_step = settings.val_every > 0 and (done % settings.val_every == 0 or done == settings.steps)
+        log_step = done % settings.log_every == 0 or done == settings.steps or val_step
+        keep_step = done % settings.checkpoint_every == 0 or done == settings.steps
         try:
             loss, terms = train_step(
                 net,
@@ -527,16 +598,15 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 info.device,
                 settings.contrast,
                 settings.clip_grad,
+                guard,
             )
+            if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
+                guard.check()
         except FloatingPointError as exc:
-            raise UsageError(_diverged(step + 1, exc, ckpt_path, kept)) from None
+            raise UsageError(_diverged(getattr(exc, "step", done), exc, ckpt_path, kept)) from None
         if average is not None:
             average.update(step)
-        done = step + 1
         val = None
-        # the same on every rank, unlike ``val`` (rank 0 only): the logging branch below holds
-        # collectives, and a rank entering it alone would wait for the others forever
-        val_step = settings.val_every > 0 and (done % settings.val_every == 0 or done == settings.steps)
         if val_loader is not None and val_step:
             val = validation_chamfer(served, val_loader, objective, info.device)
             if val < best:
@@ -552,14 +622,13 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                     train_model=trained,
                     framing=framing,
                 )
-        if done % settings.log_every == 0 or done == settings.steps or val_step:
-            row = {k: float(mean_over_ranks(v.mean().detach(), info)) for k, v in terms.items()}
-            last = float(mean_over_ranks(loss.detach(), info))
+        if log_step:
+            last, row = _log_values(loss, terms, info)
             if logger:
                 logger.log(
                     done, last, {**row, "val_chamfer": "" if val is None else val, "lr": lr}, time.perf_counter() - t0
                 )
-        if done % settings.checkpoint_every == 0 or done == settings.steps:
+        if keep_step:
             if logger:
                 save_checkpoint(
                     ckpt_path, served, optimizer, done, settings, template, train_model=trained, framing=framing
@@ -567,7 +636,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             kept = done
         if bar:
             bar.update(1)
-            bar.set_postfix(loss=f"{loss.item():.4f}")
+            if log_step:  # the loss shown is the last logged one: no read-back on the other steps
+                bar.set_postfix(loss=f"{last:.4f}")
     if bar:
         bar.close()
     if logger:
@@ -578,6 +648,14 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         "out": str(out),
         "param_digest": param_digest(served),
     }
+
+
+def _log_values(loss: torch.Tensor, terms: dict[str, torch.Tensor], info: DistInfo) -> tuple[float, dict[str, float]]:
+    """The loss and each term's batch mean as numbers (averaged over ranks): one stacked tensor,
+    one collective and one read-back for the whole row."""
+    means = torch.stack([loss.detach().float(), *(v.mean().detach().float() for v in terms.values())])
+    values = mean_over_ranks(means, info).tolist()
+    return values[0], dict(zip(terms, values[1:]))
 
 
 def _diverged(step: int, exc: FloatingPointError, ckpt_path: Path, kept: int | None) -> str:

@@ -40,13 +40,14 @@ class SketchToPatches(nn.Module):
             images = images.unsqueeze(1)
         b, v = images.shape[:2]
         flat = images.flatten(0, 1)
+        # read where the mask lives: a mask kept on the host (training's) costs no device read-back
         if view_mask is None or bool(view_mask.all()):
             return self.encoder(flat).view(b, v, -1).max(dim=1).values
         # Only the views present go through the encoder: padding views would cost a pass each and,
         # in training, pull the batch-norm statistics towards blank paper.
-        present = view_mask.bool().flatten()
-        found = self.encoder(flat[present])
-        codes = found.new_full((b * v, found.shape[1]), float("-inf")).index_put((present.nonzero().squeeze(1),), found)
+        present = view_mask.bool().flatten().nonzero().squeeze(1).to(flat.device, non_blocking=True)
+        found = self.encoder(flat.index_select(0, present))
+        codes = found.new_full((b * v, found.shape[1]), float("-inf")).index_put((present,), found)
         return codes.view(b, v, -1).max(dim=1).values
 
     def latent(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:

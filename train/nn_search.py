@@ -3,7 +3,8 @@
 The search runs on detached coordinates: on CPU, 3-D points go to the exact hashed-grid search
 of ``train.grid_nn`` (1.5-2.6x cheaper than a k-d tree per batch item on training's point
 clouds, BENCHMARKS.md), other dimensions (normal-aware matching searches in 6-D) to scipy's cKDTree per batch
-item; on CUDA, chunked torch.cdist. Distances are then recomputed in torch from the gathered
+item; on a GPU (any device but the CPU), chunked torch.cdist on that device, which reads
+nothing back to the host. Distances are then recomputed in torch from the gathered
 neighbours so gradients flow to both point sets.
 """
 
@@ -25,17 +26,21 @@ def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tens
     path; elsewhere to whichever the k-d tree or argmin picks.
     """
     q, r = query.detach(), reference.detach()
-    if q.is_cuda:
-        out = []
-        for start in range(0, q.shape[1], chunk):
-            out.append(torch.cdist(q[:, start : start + chunk], r).argmin(dim=-1))
-        return torch.cat(out, dim=1)
+    if q.device.type != "cpu":  # on the tensors' own device: no copy to the host and back
+        return device_nearest(q, r, chunk)
     qn = q.double().cpu().numpy()
     rn = r.double().cpu().numpy()
     idx = grid_nearest(qn, rn) if qn.shape[-1] == 3 else None
     if idx is not None:
         return torch.from_numpy(idx).to(query.device)
     return torch.from_numpy(kdtree_nearest(qn, rn)).to(query.device)
+
+
+def device_nearest(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tensor:
+    """``nearest_indices`` in torch alone (chunked ``cdist`` + ``argmin``), on any device: the GPU
+    path (queries per chunk, so the distance matrix stays ``chunk`` × M per item)."""
+    out = [torch.cdist(query[:, s : s + chunk], reference).argmin(dim=-1) for s in range(0, query.shape[1], chunk)]
+    return torch.cat(out, dim=1)
 
 
 def kdtree_nearest(query: np.ndarray, reference: np.ndarray) -> np.ndarray:

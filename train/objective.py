@@ -9,6 +9,7 @@ each model's fitted parameters, the fit term's target (its present patches' cont
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -17,11 +18,25 @@ from torch import Tensor
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.errors import UsageError
 from train.geometry.coons import evaluate_patches
-from train.geometry.patch_pairs import collision_pairs
+from train.geometry.patch_pairs import CollisionPairs, collision_pairs
 from train.losses.chamfer import Groups
 from train.losses.total import loss_terms
 from train.losses.weights import LossWeights
 from train.templates import Template
+
+
+@dataclasses.dataclass
+class _Resident:
+    """The template's constants as every step uses them, on one device: copied there once, so a
+    step makes no host-to-device copy or host-side computation of things that never change."""
+
+    template_patches: Tensor  # (1, P, 4, 4, 3)
+    sym: Tensor  # (K, 2) long
+    patch_points: Tensor  # (P, N) float: the incidence, as used_points multiplies it
+    any_patch_point: Tensor  # (N,) bool: points some patch depends on
+    patch_group: Tensor  # (P,) long
+    pairs: CollisionPairs
+    masks: dict[frozenset[str] | None, Tensor]  # (P,) bool patch mask per set of present parts
 
 
 class Objective:
@@ -43,6 +58,26 @@ class Objective:
         self.patch_group = torch.tensor(
             [self.group_of_label.get(lab, len(group_names)) for lab in template.patch_labels], dtype=torch.long
         )
+        self._resident: dict[torch.device, _Resident] = {}
+
+    def resident(self, device: torch.device) -> _Resident:
+        """The constants on ``device`` (made on the first step that runs there)."""
+        device = torch.device(device)
+        if device not in self._resident:
+            with torch.inference_mode(False):  # kept for later steps, which autograd records
+                self._resident[device] = self._make_resident(device)
+        return self._resident[device]
+
+    def _make_resident(self, device: torch.device) -> _Resident:
+        return _Resident(
+            self.template_patches.to(device),
+            self.sym.to(device),
+            self.patch_points.to(device).float(),
+            self.patch_points.any(0).to(device),
+            self.patch_group.to(device),
+            self.pairs.to(device),
+            {},
+        )
 
     def sample_st(self, generator: torch.Generator | None) -> Tensor:
         """Uniform random (s, t) samples (S, 2) when given a generator, else a midpoint grid."""
@@ -58,7 +93,16 @@ class Objective:
         without ``present_parts`` (a source without part labels) counts as having every part."""
         if not self.template.part_names:
             return None
-        return torch.stack([self.mask_for((meta or {}).get(PRESENT_PARTS)) for meta in metas]).to(device)
+        return torch.stack([self._mask_on(device, (meta or {}).get(PRESENT_PARTS)) for meta in metas])
+
+    def _mask_on(self, device: torch.device, present: list[str] | None) -> Tensor:
+        """``mask_for(present)`` on ``device``, made once per set of parts (a batch repeats a few)."""
+        masks = self.resident(device).masks
+        key = None if present is None else frozenset(present)
+        if key not in masks:
+            with torch.inference_mode(False):
+                masks[key] = self.mask_for(present).to(device)
+        return masks[key]
 
     def mask_for(self, present: list[str] | None) -> Tensor:
         """(P,) bool patch mask for a model with the part families ``present`` (None: all), from
@@ -85,19 +129,19 @@ class Objective:
             names = (meta or {}).get(POINT_PART_NAMES) or []
             lut = torch.tensor([self.group_of_label.get(n, self.n_groups - 1) for n in names] or [0], dtype=torch.long)
             rows.append(lut[ids[b].clamp(0, len(lut) - 1)])
-        return Groups(self.patch_group.to(device), torch.stack(rows).to(device), self.n_groups)
+        return Groups(self.resident(device).patch_group, torch.stack(rows).to(device, non_blocking=True), self.n_groups)
 
     def symmetry_valid(self, mask: Tensor | None) -> Tensor | None:
         """(B, K) bool: symmetry pairs whose two points both belong to some present patch."""
         if mask is None or not self.sym.numel():
             return None
         used = self.used_points(mask)
-        sym = self.sym.to(mask.device)
+        sym = self.resident(mask.device).sym
         return used[:, sym[:, 0]] & used[:, sym[:, 1]]
 
     def used_points(self, mask: Tensor) -> Tensor:
         """(B, N) bool: template points some present patch depends on."""
-        return (mask.float() @ self.patch_points.to(mask.device).float()) > 0
+        return (mask.float() @ self.resident(mask.device).patch_points) > 0
 
     def fit_targets(
         self, batch: dict, mask: Tensor | None, device: torch.device
@@ -114,11 +158,11 @@ class Objective:
                 f"{self.template.name or '?'} has {self.template.num_params}: the dataset was fitted to another template"
             )
         with torch.no_grad():
-            points = self.template.points_from_params(fit.to(device))
-        used = self.patch_points.any(0).to(device)[None].expand(fit.shape[0], -1)
+            points = self.template.points_from_params(fit.to(device, non_blocking=True))
+        used = self.resident(device).any_patch_point[None].expand(fit.shape[0], -1)
         if mask is not None:
             used = self.used_points(mask)
-        return points, used & batch["fit_valid"].to(device)[:, None]
+        return points, used & batch["fit_valid"].to(device, non_blocking=True)[:, None]
 
     def batch_terms(
         self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, training: bool = True
@@ -131,7 +175,7 @@ class Objective:
         fit_points, fit_weight = self.fit_targets(batch, mask, dev) if weights.fit else (None, None)
         return self.terms(
             params,
-            batch["points"].to(dev),
+            batch["points"].to(dev, non_blocking=True),
             st,
             mask,
             weights,
@@ -156,25 +200,26 @@ class Objective:
         """Each term per batch item (B,) for network outputs ``params (B, D)`` and target
         ``points (B, M, 6)`` (xyz + normal); terms with weight 0 are skipped. ``fit_points`` and
         ``fit_weight`` (``fit_targets``) feed the fit term."""
-        st = st.to(params.device)
+        # drawn on the host by the step's seeded generator: one small copy, not waited for
+        st = st.to(params.device, non_blocking=True)
+        on = self.resident(params.device)
         template_normals = None
         if weights.template_normal:
-            template_normals = evaluate_patches(self.template_patches.to(params.device), st).normals[0]
+            template_normals = evaluate_patches(on.template_patches, st).normals[0]
+        patches, control_points = self.template.patches_and_points(params)
         return loss_terms(
-            self.template.patches_from_params(params),
+            patches,
             st,
             points[..., :3],
             points[..., 3:],
             weights,
             patch_mask=mask,
             template_normals=template_normals,
-            control_points=self.template.points_from_params(params)
-            if self.sym.numel() or fit_points is not None
-            else None,
-            symmetry_pairs=self.sym if self.sym.numel() else None,
+            control_points=control_points if self.sym.numel() or fit_points is not None else None,
+            symmetry_pairs=on.sym if self.sym.numel() else None,
             symmetry_valid=self.symmetry_valid(mask),
             plane_x=self.plane_x,
-            collision=self.pairs,
+            collision=on.pairs,
             groups=groups,
             match_normals=match_normals,
             fit_points=fit_points,

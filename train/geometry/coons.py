@@ -93,7 +93,13 @@ def _apply(patches: Tensor, basis: Tensor) -> Tensor:
 
 def coons_points(patches: Tensor, st: Tensor) -> Tensor:
     """Surface points of ``patches (..., P, 4, 4, 3)`` at ``st (S, 2)`` or ``(P, S, 2)`` → ``(..., P, S, 3)``."""
-    return _apply(patches, coons_basis(st, patches.dtype, patches.device)[0])
+    return points_from_basis(patches, coons_basis(st, patches.dtype, patches.device)[0])
+
+
+def points_from_basis(patches: Tensor, basis: Tensor) -> Tensor:
+    """``coons_points`` with the point weights ``coons_basis(st)[0]`` given (samples that never
+    change, such as a fixed grid, need their weights computed only once)."""
+    return _apply(patches, basis)
 
 
 def coons_partials(patches: Tensor, st: Tensor) -> tuple[Tensor, Tensor]:

@@ -9,7 +9,7 @@ pairs, so this sits below both.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import torch
@@ -34,6 +34,25 @@ class CollisionPairs:
     keep_i: Tensor  # (K, grid*grid) bool, vertices of patch i kept for pair k
     keep_j: Tensor  # (K, grid*grid) bool
     grid: int
+    # (K',) long: the pairs whose masks leave vertices out (those sharing a boundary); None: not
+    # listed yet (``partial_pairs`` finds them). Built with the masks, so a training step need not.
+    partial: Tensor | None = field(default=None, compare=False)
+
+    def partial_pairs(self) -> Tensor:
+        """Indices of the pairs whose masks leave vertices out, ``(K',)`` long."""
+        if self.partial is not None:
+            return self.partial
+        return (~(self.keep_i.all(-1) & self.keep_j.all(-1))).nonzero().squeeze(1)
+
+    def to(self, device: torch.device) -> "CollisionPairs":
+        """These pairs with every tensor on ``device``."""
+        return CollisionPairs(
+            self.pairs.to(device),
+            self.keep_i.to(device),
+            self.keep_j.to(device),
+            self.grid,
+            self.partial_pairs().to(device),
+        )
 
 
 def _vertex_mask(sides: list[bool], corners: list[bool], grid: int, truncate: int) -> Tensor:
@@ -86,5 +105,8 @@ def unconnected_pairs(num_patches: int, grid: int = 8) -> CollisionPairs:
 def _pack(pairs, keep_i, keep_j, grid) -> CollisionPairs:
     if not pairs:
         empty = torch.zeros((0, grid * grid), dtype=torch.bool)
-        return CollisionPairs(torch.zeros((0, 2), dtype=torch.long), empty, empty, grid)
-    return CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
+        return CollisionPairs(
+            torch.zeros((0, 2), dtype=torch.long), empty, empty, grid, torch.zeros(0, dtype=torch.long)
+        )
+    packed = CollisionPairs(torch.tensor(pairs, dtype=torch.long), torch.stack(keep_i), torch.stack(keep_j), grid)
+    return CollisionPairs(packed.pairs, packed.keep_i, packed.keep_j, grid, packed.partial_pairs())

@@ -2,18 +2,37 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from train.geometry.coons import coons_points
+from train.geometry.coons import coons_basis, points_from_basis
 from train.geometry.grid import grid_params, grid_triangulation
 
 
 def triangulate_patches(patches: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """Images of a k×k boundary grid: vertices ``(..., P, k*k, 3)`` (differentiable), faces ``(F, 3)``."""
-    st = grid_params(k, dtype=patches.dtype).to(patches.device)
-    return coons_points(patches, st), grid_triangulation(k).to(patches.device)
+    """Images of a k×k boundary grid: vertices ``(..., P, k*k, 3)`` (differentiable), faces ``(F, 3)``
+    (shared between calls: do not modify them)."""
+    return points_from_basis(patches, grid_basis(k, patches.dtype, patches.device)), grid_faces(k, patches.device)
+
+
+@functools.lru_cache(maxsize=64)
+def grid_basis(k: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """Coons point weights ``(k*k, 16)`` of the k×k boundary grid on ``device``: made once (the
+    collision term triangulates every step at the same grid), the same numbers as ``coons_points``'
+    own (computed there, on that device, from the same samples)."""
+    with torch.inference_mode(False):  # a tensor kept for later steps must be usable by autograd
+        return coons_basis(grid_params(k, dtype=dtype).to(device), dtype, device)[0]
+
+
+@functools.lru_cache(maxsize=64)
+def grid_faces(k: int, device: torch.device) -> Tensor:
+    """``grid_triangulation(k)`` on ``device``, made once (shared: do not modify)."""
+    with torch.inference_mode(False):
+        return grid_triangulation(k).to(device)
 
 
 def welded_mesh(patches: Tensor, k: int = 16, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,9 @@ def flatness_loss(points: Tensor, st: Tensor, jacobian: Tensor, valid: Tensor | 
     design = torch.cat([st, torch.ones_like(st[..., :1])], dim=-1)  # (…, S, 3)
     xtx = design.transpose(-1, -2) @ design  # (…, 3, 3)
     xtp = design.transpose(-1, -2) @ points  # (B, P, 3, 3)
-    coef = torch.linalg.solve(xtx.expand(xtp.shape[:-2] + (3, 3)), xtp)
+    # solve_ex: the same solve without its error check, which on a GPU reads a flag back every
+    # call (the normal matrix of distinct samples is never singular)
+    coef = torch.linalg.solve_ex(xtx.expand(xtp.shape[:-2] + (3, 3)), xtp)[0]
     resid = ((design @ coef - points) ** 2).sum(-1)
     return _weighted_mean(resid, jacobian, valid)
 

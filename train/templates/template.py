@@ -311,10 +311,7 @@ class Template:
                         ).reshape(-1, 4),
                         sub=torch.tensor(sub, dtype=torch.long, device=device),
                         sub_parent=torch.tensor([self.curves[c].parent for c in sub], dtype=torch.long, device=device),
-                        sub_ab=[
-                            tuple(self._param_column(c, r) for r in (self.curves[c].start, self.curves[c].end))
-                            for c in sub
-                        ],
+                        **self._sub_ends(sub, device),
                         jun=torch.tensor(jun, dtype=torch.long, device=device),
                         jun_curve=torch.tensor([self.points[i].curve for i in jun], dtype=torch.long, device=device),
                         jun_col=torch.tensor([self._offsets[i] for i in jun], dtype=torch.long, device=device),
@@ -331,6 +328,23 @@ class Template:
             )
         return cache[key]
 
+    def _sub_ends(self, sub: list[int], device: torch.device) -> dict[str, Tensor]:
+        """Where each sub-curve of a round starts and ends on its parent, as index tensors built
+        once: ``sub_col`` (n, 2) the parameter column of a junction's logit, ``sub_fixed`` (n, 2)
+        the fixed 0.0 / 1.0 of a parent end point, ``sub_is_col`` which of the two applies (one
+        gather per round instead of a tensor per end and step)."""
+        ends = [[self._param_column(c, r) for r in (self.curves[c].start, self.curves[c].end)] for c in sub]
+        is_col = [[isinstance(v, int) for v in pair] for pair in ends]
+        return dict(
+            sub_col=torch.tensor(
+                [[v if isinstance(v, int) else 0 for v in pair] for pair in ends], dtype=torch.long, device=device
+            ).reshape(-1, 2),
+            sub_fixed=torch.tensor(
+                [[0.0 if isinstance(v, int) else v for v in pair] for pair in ends], dtype=torch.float64, device=device
+            ).reshape(-1, 2),
+            sub_is_col=torch.tensor(is_col, dtype=torch.bool, device=device).reshape(-1, 2),
+        )
+
     def _evaluate(self, params: Tensor) -> tuple[Tensor, Tensor]:
         if params.dim() == 1:
             params = params[None]
@@ -346,11 +360,8 @@ class Template:
             if len(rnd["reg"]):
                 ctrl = ctrl.index_copy(1, rnd["reg"], pts[:, rnd["reg_pts"]])
             if len(rnd["sub"]):
-                ab = [
-                    torch.stack([sig[:, v] if isinstance(v, int) else params.new_full((bsz,), v) for v in pair], -1)
-                    for pair in rnd["sub_ab"]
-                ]
-                ab = torch.stack(ab, 1)  # (B, n_sub, 2)
+                fixed = rnd["sub_fixed"].to(params.dtype)
+                ab = torch.where(rnd["sub_is_col"], sig[:, rnd["sub_col"]], fixed)  # (B, n_sub, 2)
                 sub_ctrl = bezier_subdivide(ctrl[:, rnd["sub_parent"]], ab[..., 0], ab[..., 1])
                 ctrl = ctrl.index_copy(1, rnd["sub"], sub_ctrl)
             if len(rnd["jun"]):
@@ -369,8 +380,16 @@ class Template:
 
     def patches_from_params(self, params: Tensor) -> Tensor:
         """Patches ``(B, P, 4, 4, 3)`` in the paper's orientation, differentiable in ``params (B, D)``."""
-        ctrl = self._evaluate(params)[1]
-        idx = self._index_cache(params.device)
+        return self._patches_of(self._evaluate(params)[1], params.device)
+
+    def patches_and_points(self, params: Tensor) -> tuple[Tensor, Tensor]:
+        """``patches_from_params`` and ``points_from_params`` from one evaluation (the loss needs
+        both: evaluating twice doubles the template's share of the forward and backward)."""
+        pts, ctrl = self._evaluate(params)
+        return self._patches_of(ctrl, params.device), pts
+
+    def _patches_of(self, ctrl: Tensor, device: torch.device) -> Tensor:
+        idx = self._index_cache(device)
         pc = ctrl[:, idx["patch_curves"]]  # (B, P, 4, 4, 3)
         return torch.where(idx["patch_reverse"][None, :, :, None, None], pc.flip(-2), pc)
 
