@@ -22,6 +22,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from pipeline.core.canonical_json import canonical_dumps
+from pipeline.core.points_text import compact_dumps
 
 # errno → what the user should read (and do) when a write fails
 _STORAGE_PROBLEMS = {
@@ -132,8 +133,6 @@ def dumps_json_compact(obj: Any) -> str:
     the stroke files (~100k coordinates a model), which the C encoder writes several times
     faster than the indented text and in about half the bytes; equal content, equal bytes.
     ``pipeline.core.points_text.RoundedPoints`` values are written by its compiled writer."""
-    from pipeline.core.points_text import compact_dumps
-
     return compact_dumps(obj, _json_default) + "\n"
 
 
