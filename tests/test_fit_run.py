@@ -205,3 +205,21 @@ def test_the_run_keeps_how_its_sketches_fill_the_frame(shards, tmp_path):
     ckpt = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert set(ckpt["framing"]) == {"extent", "darkness", "width"} and 0 < ckpt["framing"]["extent"] <= 1
     assert load_run(tmp_path / "run" / "checkpoint.pt").framing == Framing(**ckpt["framing"])
+
+
+def test_evaluate_all_splits_against_another_datasets_blind_mean(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 3, lr=1e-2), progress=False)
+    # "other meshes": a dataset of its own with no train split, only val and test
+    other = write_fixture_shards(tmp_path / "other", counts={"val": 1, "test": 2}, n_points=800, size=32, seed=5)
+    res = evaluate(out / "checkpoint.pt", other, "all", blind_dataset=shards, cad_check=0)
+    assert res["samples"] == 3 and res["split"] == "all" and res["blind_from"] == str(shards)
+    run = load_run(out / "checkpoint.pt")
+    data = DataSettings(eval_views=1, n_points=300, image_size=32)
+    blind = mean_output(run.model, make_loader(shards, "knife", "train", data, 0, 8, train=False))
+    # the blind row is the training data's mean output, measured on the other meshes
+    by_hand = evaluate(out / "checkpoint.pt", other, "test", blind_dataset=shards, cad_check=0)
+    assert by_hand["samples"] == 2 and by_hand["blind"]["chamfer"] != by_hand["model"]["chamfer"]
+    assert blind.shape == (run.model.num_params,)
+    with pytest.raises(Exception, match="train"):  # without --blind-from it needs the other's train split
+        evaluate(out / "checkpoint.pt", other, "test", cad_check=0)

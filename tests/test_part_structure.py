@@ -219,3 +219,21 @@ def test_labels_foreign_to_the_template_switch_no_part_off() -> None:
     obj = Objective(load_template("knife"), n_points=500)
     assert torch.equal(obj.mask_for(["seat", "leg"]), obj.mask_for(None))
     assert not torch.equal(obj.mask_for(["blade", "handle"]), obj.mask_for(None))  # the template's names still count
+
+
+def test_left_out_labels_are_off_for_every_model() -> None:
+    # real car bodies without wheels (TORCS): evaluate leaves the template's wheel patches out
+    car = load_template("car")
+    labels = np.array(car.patch_labels)
+    wheels = torch.from_numpy(np.isin(labels, ["wheel_front", "wheel_rear"]))
+    plain, left = Objective(car, 200), Objective(car, 200, leave_out=("wheel_front", "wheel_rear"))
+    for present in (None, ["body", "wheel_front", "wheel_rear"], ["body", "spoiler", "wheel_front", "wheel_rear"]):
+        assert plain.mask_for(present)[wheels].all()
+        assert not left.mask_for(present)[wheels].any()
+        assert torch.equal(left.mask_for(present)[~wheels], plain.mask_for(present)[~wheels])
+    assert not left.patch_mask([{}, {PRESENT_PARTS: None}], torch.device("cpu"))[:, wheels].any()
+    # a template without optional parts gets a mask only when something is left out
+    sphere = load_template("sphere24")
+    assert Objective(sphere, 200).patch_mask([{}], torch.device("cpu")) is None
+    with pytest.raises(ValueError, match="no patches labelled wings"):
+        Objective(car, 200, leave_out=("wings",))

@@ -162,6 +162,8 @@ def _run(a: argparse.Namespace) -> None:
                 e.limit,
                 e.out_path(),
                 cad_check=e.cad_check,
+                blind_dataset=e.blind_from,
+                leave_out=tuple(e.leave_out),
             )
         print(format_table(res))
         print(f"saved {e.out_path()}")

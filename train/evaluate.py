@@ -25,9 +25,9 @@ from pathlib import Path
 import torch
 
 from pipeline.core.atomic import write_json
-from pipeline.core.schema import SPLITS
+from pipeline.core.schema import SPLITS, shard_glob
 from pipeline.core.settings_io import setting
-from train.data import DataSettings, make_loader
+from train.data import DataSettings, make_loader, shard_urls
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict
@@ -39,6 +39,7 @@ from train.losses.weights import LossWeights
 from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
 from train.objective import Objective
 
+ALL_SPLITS = "all"  # --split all: every split the dataset has, as one set
 LOSS_METRICS = ("chamfer", "normal", "flat", "template_normal", "collision")
 PEER_METRICS = ("chamfer_sq_x1000", "normal_consistency")
 
@@ -120,8 +121,18 @@ class EvaluateSettings:
         "with the CAD kernel's verdict on each; DIR/<stem>.obj|.ply|.stl beside a drawing is its ground truth, "
         "measured with the metrics below",
     )
-    split: str = setting("test", f"split to evaluate: {', '.join(SPLITS)}")
+    split: str = setting("test", f"split to evaluate: {', '.join(SPLITS)}, or all (every split the dataset has)")
     category: str | None = setting(None, "category (default: the run's)")
+    blind_from: str | None = setting(
+        None,
+        "dataset whose train split gives the sketch-blind mean (default: --dataset); for meshes the run "
+        "never saw (a folder of real meshes) give the run's own training dataset",
+    )
+    leave_out: tuple[str, ...] = setting(
+        (),
+        "patch labels to measure as absent in every prediction, for targets known to lack those parts "
+        "(TORCS car bodies have no wheels: --leave-out wheel_front wheel_rear)",
+    )
     views: int = setting(1, "views per sample the network sees")
     tau: tuple[float, ...] = setting((0.02, 0.05), "F-score distance thresholds (unit-sphere frame)")
     limit: int | None = setting(None, "evaluate at most this many samples (default: all)")
@@ -134,8 +145,8 @@ class EvaluateSettings:
 
     def __post_init__(self) -> None:
         # the split is the command line's to check; the numbers evaluate() checks for every caller
-        if self.split not in SPLITS:
-            raise UsageError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r} (--split)")
+        if self.split not in SPLITS + (ALL_SPLITS,):
+            raise UsageError(f"split must be one of {', '.join(SPLITS + (ALL_SPLITS,))}, got {self.split!r} (--split)")
         if (self.dataset is None) == (self.images is None):
             raise UsageError("give --dataset (a split of shards) or --images (a folder of drawings), one of them")
 
@@ -168,29 +179,38 @@ def evaluate(
     out: str | Path | None = None,
     batch_size: int = 8,
     cad_check: int = 0,
+    blind_dataset: str | Path | None = None,
+    leave_out: tuple[str, ...] = (),
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
     With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
-    predictions (a second or more each: the kernel intersects the exact surfaces)."""
+    predictions (a second or more each: the kernel intersects the exact surfaces). ``split`` may
+    be ``"all"``: every split that has shards. The blind mean is taken over ``blind_dataset``'s
+    train split (default ``dataset``'s): on meshes the network never saw, it is its own training
+    data's mean output that the network must beat. ``leave_out``: patch labels measured as absent
+    in every prediction (model, template and blind alike), for targets known to lack those parts:
+    the TORCS car bodies have no wheels (the game adds its own)."""
     check_evaluate_args(views, taus, limit)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
-    objective = Objective(template, s.n_points)
+    try:
+        objective = Objective(template, s.n_points, leave_out=tuple(leave_out))
+    except ValueError as exc:
+        raise UsageError(f"{exc} (--leave-out)") from None
     names = metric_names(tuple(taus))
     # the same evaluation samples on every call, and for the network as for the template
     baselines = ("model", "template", "blind")
     generators = {name: torch.Generator().manual_seed(0) for name in baselines}
     data = DataSettings(eval_views=views, n_points=s.n_points, image_size=s.image_size)
     cat = category or s.category
-    loader = make_loader(dataset, cat, split, data, 0, batch_size, train=False)
-    blind = blind_output(model, dataset, cat, data, batch_size)[None]
+    blind = blind_output(model, blind_dataset or dataset, cat, data, batch_size)[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
     count = 0
     base = template.initial_params()[None]
     verdicts = []
-    for batch in loader:
+    for batch in _batches(dataset, cat, split, data, batch_size):
         params = model(batch["images"], batch["view_mask"])
         if len(verdicts) < cad_check:
             verdicts += cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])
@@ -204,6 +224,8 @@ def evaluate(
         "checkpoint": str(checkpoint),
         "step": run.step,
         "split": split,
+        **({"blind_from": str(blind_dataset)} if blind_dataset else {}),
+        **({"left_out": sorted(leave_out)} if leave_out else {}),
         "samples": count,
         "views": views,
         "fscore_taus": list(taus),
@@ -216,6 +238,18 @@ def evaluate(
     if out:
         write_json(out, result)
     return result
+
+
+def _batches(dataset: str | Path, category: str, split: str, data: DataSettings, batch_size: int):
+    """The evaluation batches of one split, or of every split with shards (``split`` "all")."""
+    if split != ALL_SPLITS:
+        yield from make_loader(dataset, category, split, data, 0, batch_size, train=False)
+        return
+    found = [s for s in SPLITS if any((Path(dataset) / category).glob(shard_glob(s)))]
+    if not found:
+        shard_urls(dataset, category, SPLITS[-1])  # raises, naming what is missing
+    for s in found:
+        yield from make_loader(dataset, category, s, data, 0, batch_size, train=False)
 
 
 def format_table(result: dict) -> str:

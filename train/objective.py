@@ -42,8 +42,23 @@ class _Resident:
 class Objective:
     """Loss terms of a template's patches against target points, per batch item."""
 
-    def __init__(self, template: Template, n_points: int = 7000, collision_grid: int = 8, match_normals: float = 0.0):
+    def __init__(
+        self,
+        template: Template,
+        n_points: int = 7000,
+        collision_grid: int = 8,
+        match_normals: float = 0.0,
+        leave_out: tuple[str, ...] = (),
+    ):
         self.template = template
+        unknown = sorted(set(leave_out) - set(template.patch_labels))
+        if unknown:
+            raise ValueError(
+                f"no patches labelled {', '.join(unknown)} in the template "
+                f"(its labels: {', '.join(sorted(set(template.patch_labels)))})"
+            )
+        # patches no target has (real car bodies without wheels): off in every mask
+        self.keep = torch.tensor([lab not in leave_out for lab in template.patch_labels], dtype=torch.bool)
         self.match_normals = match_normals  # λ of normal-aware matching in training (metrics: plain)
         self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
         self.pairs = collision_pairs(template, grid=collision_grid)
@@ -90,9 +105,12 @@ class Objective:
     def patch_mask(self, metas: list[dict], device: torch.device) -> Tensor | None:
         """(B, P) bool: patches of optional parts a model lacks are off (e.g. engines), and the
         template's closing patches of a part are on only when the part is absent. A model
-        without ``present_parts`` (a source without part labels) counts as having every part."""
+        without ``present_parts`` (a source without part labels) counts as having every part.
+        Patches of the labels left out (``leave_out``) are off for every model."""
         if not self.template.part_names:
-            return None
+            if bool(self.keep.all()):
+                return None
+            return self.keep.to(device).expand(len(metas), -1)
         return torch.stack([self._mask_on(device, (meta or {}).get(PRESENT_PARTS)) for meta in metas])
 
     def _mask_on(self, device: torch.device, present: list[str] | None) -> Tensor:
@@ -114,7 +132,7 @@ class Objective:
         parts = {p: present is None or p in present for p in self.template.part_names}
         mask = torch.zeros(self.template.num_patches, dtype=torch.bool)
         mask[self.template.active_patches(parts)] = True
-        return mask
+        return mask & self.keep
 
     def groups(self, batch: dict, device: torch.device) -> Groups | None:
         """Part group of each target point from the shard's per-point labels, or None when the
