@@ -223,3 +223,24 @@ def test_evaluate_all_splits_against_another_datasets_blind_mean(shards, tmp_pat
     assert blind.shape == (run.model.num_params,)
     with pytest.raises(Exception, match="train"):  # without --blind-from it needs the other's train split
         evaluate(out / "checkpoint.pt", other, "test", cad_check=0)
+
+
+def test_the_output_layer_learns_at_its_own_scale(shards, tmp_path):
+    initial = load_template("sphere24").initial_params().reshape(-1)
+    moved = {}
+    for scale in (1.0, 0.25):
+        out = tmp_path / f"scale{scale}"
+        fit(settings(shards, out, 1, lr=1e-3, output_lr_scale=scale), progress=False)
+        ck = load_checkpoint(out / "checkpoint.pt")
+        moved[scale] = (ck["model"]["out.bias"] - initial).abs()
+        groups = ck["optimizer"]["param_groups"]
+        assert len(groups) == (1 if scale == 1.0 else 2)
+    # Adam's first step moves every parameter with a gradient by the group's learning rate
+    stepped = moved[1.0] > 1e-6
+    assert stepped.float().mean() > 0.9
+    torch.testing.assert_close(moved[1.0][stepped], torch.full_like(moved[1.0][stepped], 1e-3), rtol=1e-2, atol=1e-6)
+    torch.testing.assert_close(moved[0.25][stepped], torch.full_like(moved[1.0][stepped], 2.5e-4), rtol=1e-2, atol=1e-6)
+    # a resume keeps the scale (it is part of the run's identity)
+    fit(settings(shards, tmp_path / "scale0.25", 2, lr=1e-3, output_lr_scale=0.25), progress=False)
+    with pytest.raises(ValueError, match="different settings"):
+        fit(settings(shards, tmp_path / "scale0.25", 3, lr=1e-3, output_lr_scale=0.5), progress=False)
