@@ -23,9 +23,18 @@ def test_recipes_hold_their_rows_settings() -> None:
     assert (knife.contrast, knife.lr_schedule, knife.steps, knife.lr) == (1.0, "cosine", 5900, 1e-4)
     assert knife.weights.template_normal == pytest.approx(1e-4)  # from the template file
     plane = recipe("airplane")
-    assert (plane.lr, plane.ema, plane.lr_schedule, plane.weights.collision) == (3e-5, 0.999, "constant", 3.0)
+    assert (plane.lr, plane.output_lr_scale, plane.ema, plane.lr_schedule, plane.weights.collision) == (
+        1e-4,
+        0.3,
+        0.999,
+        "cosine",
+        3.0,
+    )
+    # the budget: at most 6,000 steps of batch 8 for every category
+    assert all(recipe(name).steps <= 6000 and recipe(name).batch_size == 8 for name in RECIPES)
     assert plane.weights.symmetry == 1.0  # the template's regularizer, kept under the recipe's weights
     assert recipe("bathtub").match_normals == pytest.approx(0.1) and recipe("mug").contrast == 0.1
+    assert (recipe("mug").output_lr_scale, recipe("mug").steps) == (0.3, 4000)
 
 
 def test_unknown_recipe_names_the_choices() -> None:
@@ -46,8 +55,8 @@ def _fit(argv: list[str]) -> FitSettings:
 def test_fit_recipe_flag_takes_the_recipe_and_flags_override_it() -> None:
     s = _fit(["--recipe", "knife", "--dataset", "d", "--out", "o"])
     assert s == recipe("knife", "d", "o")
-    s = _fit(["--recipe", "airplane", "--dataset", "d", "--out", "o", "--steps=50", "--lr", "1e-4", "--w-flat", "3"])
-    assert (s.steps, s.lr, s.weights.flat) == (50, 1e-4, 3.0)
+    s = _fit(["--recipe", "airplane", "--dataset", "d", "--out", "o", "--steps=50", "--lr", "3e-5", "--w-flat", "3"])
+    assert (s.steps, s.lr, s.weights.flat) == (50, 3e-5, 3.0)
     assert (s.ema, s.weights.collision) == (0.999, 3.0)  # the rest stays the recipe's
 
 

@@ -21,9 +21,9 @@ _COSINE = dict(lr_schedule="cosine")
 # category -> (fields on top of _SHARED, loss weights on top of the template's, what it is)
 _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "airplane": (
-        dict(lr=3e-5, ema=0.999, contrast=1.0, steps=8000),
+        dict(lr=1e-4, output_lr_scale=0.3, ema=0.999, contrast=1.0, steps=6000, **_COSINE),
         {"collision": 3.0},
-        "constant 3e-5, collision weight 3, weight average 0.999",
+        "cosine decay from 1e-4, the output layer at 0.3 of it, collision weight 3, weight average 0.999",
     ),
     "bathtub": (dict(contrast=0.1, steps=5000, **_COSINE), {}, "contrast 0.1, cosine decay"),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
@@ -31,7 +31,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "guitar": (dict(contrast=0.1, steps=5900, **_COSINE), {}, "contrast 0.1, cosine decay"),
     "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "knife": (dict(contrast=1.0, steps=5900, **_COSINE), {}, "contrast 1.0, cosine decay"),
-    "mug": (dict(contrast=0.1, steps=4900, **_COSINE), {}, "contrast 0.1, cosine decay"),
+    "mug": (
+        dict(contrast=0.1, output_lr_scale=0.3, steps=4000, **_COSINE),
+        {},
+        "contrast 0.1, cosine decay, the output layer at 0.3 of the rate",
+    ),
 }
 RECIPES: tuple[str, ...] = tuple(sorted(_RECIPES))
 
