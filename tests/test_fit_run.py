@@ -10,7 +10,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from pipeline.core.settings_io import SettingError
-from train.data import DataSettings, make_loader
+from train.data import DataSettings, NoShards, make_loader
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
 from train.losses.weights import LossWeights
@@ -210,19 +210,24 @@ def test_the_run_keeps_how_its_sketches_fill_the_frame(shards, tmp_path):
 def test_evaluate_all_splits_against_another_datasets_blind_mean(shards, tmp_path):
     out = tmp_path / "run"
     fit(settings(shards, out, 3, lr=1e-2), progress=False)
-    # "other meshes": a dataset of its own with no train split, only val and test
+    ckpt = out / "checkpoint.pt"
+    # "other meshes": a dataset of their own with no train split, only val and test
     other = write_fixture_shards(tmp_path / "other", counts={"val": 1, "test": 2}, n_points=800, size=32, seed=5)
-    res = evaluate(out / "checkpoint.pt", other, "all", blind_dataset=shards, cad_check=0)
-    assert res["samples"] == 3 and res["split"] == "all" and res["blind_from"] == str(shards)
-    run = load_run(out / "checkpoint.pt")
-    data = DataSettings(eval_views=1, n_points=300, image_size=32)
-    blind = mean_output(run.model, make_loader(shards, "knife", "train", data, 0, 8, train=False))
-    # the blind row is the training data's mean output, measured on the other meshes
-    by_hand = evaluate(out / "checkpoint.pt", other, "test", blind_dataset=shards, cad_check=0)
-    assert by_hand["samples"] == 2 and by_hand["blind"]["chamfer"] != by_hand["model"]["chamfer"]
-    assert blind.shape == (run.model.num_params,)
-    with pytest.raises(Exception, match="train"):  # without --blind-from it needs the other's train split
-        evaluate(out / "checkpoint.pt", other, "test", cad_check=0)
+    both = evaluate(ckpt, other, "all", blind_dataset=shards, cad_check=0)
+    assert both["samples"] == 3 and both["split"] == "all" and both["blind_from"] == str(shards)
+    # "all" is the two splits as one set: the sample-weighted mean of each split's figures
+    val, test = (evaluate(ckpt, other, s, blind_dataset=shards, cad_check=0) for s in ("val", "test"))
+    for who in ("model", "template", "blind"):
+        mean = (val[who]["chamfer"] * 1 + test[who]["chamfer"] * 2) / 3
+        assert both[who]["chamfer"] == pytest.approx(mean, rel=1e-6)
+    # the blind row follows --blind-from: another training set, another constant prediction
+    third = write_fixture_shards(tmp_path / "third", n_points=800, size=32, seed=9)
+    elsewhere = evaluate(ckpt, other, "test", blind_dataset=third, cad_check=0)
+    assert elsewhere["model"] == test["model"] and elsewhere["blind"]["chamfer"] != test["blind"]["chamfer"]
+    with pytest.raises(NoShards, match="train"):  # without --blind-from it needs the other's train split
+        evaluate(ckpt, other, "test", cad_check=0)
+    with pytest.raises(NoShards, match="no category"):
+        evaluate(ckpt, other, "all", category="mug", blind_dataset=shards, cad_check=0)
 
 
 def test_the_output_layer_learns_at_its_own_scale(shards, tmp_path):

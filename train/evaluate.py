@@ -25,9 +25,9 @@ from pathlib import Path
 import torch
 
 from pipeline.core.atomic import write_json
-from pipeline.core.schema import SPLITS, shard_glob
+from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import setting
-from train.data import DataSettings, make_loader, shard_urls
+from train.data import DataSettings, NoShards, make_loader, shard_urls
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict
@@ -242,14 +242,19 @@ def evaluate(
 
 def _batches(dataset: str | Path, category: str, split: str, data: DataSettings, batch_size: int):
     """The evaluation batches of one split, or of every split with shards (``split`` "all")."""
-    if split != ALL_SPLITS:
-        yield from make_loader(dataset, category, split, data, 0, batch_size, train=False)
-        return
-    found = [s for s in SPLITS if any((Path(dataset) / category).glob(shard_glob(s)))]
-    if not found:
-        shard_urls(dataset, category, SPLITS[-1])  # raises, naming what is missing
-    for s in found:
-        yield from make_loader(dataset, category, s, data, 0, batch_size, train=False)
+    splits, missing = [split], None
+    if split == ALL_SPLITS:
+        splits = []
+        for name in SPLITS:
+            try:
+                shard_urls(dataset, category, name)
+                splits.append(name)
+            except NoShards as exc:
+                missing = exc
+        if not splits:
+            raise missing  # names the folder and what is missing from it
+    for name in splits:
+        yield from make_loader(dataset, category, name, data, 0, batch_size, train=False)
 
 
 def format_table(result: dict) -> str:

@@ -366,21 +366,28 @@ def step_weights(settings: FitSettings, step: int) -> LossWeights:
 
 
 def make_optimizer(
-    model: torch.nn.Module, lr: float, device: torch.device, output_lr_scale: float = 1.0
+    model: torch.nn.Module,
+    lr: float,
+    device: torch.device,
+    output_lr_scale: float = 1.0,
+    output: torch.nn.Module | None = None,
 ) -> torch.optim.Optimizer:
     """Adam; the fused kernel on CPU and CUDA (same update, one pass over the parameters: about 7x
     cheaper than the per-tensor loop on one CPU core, BENCHMARKS.md). With ``output_lr_scale`` != 1
-    the parameters named ``*out.*`` (the output layer) form a second group whose ``lr_scale`` the
-    schedule multiplies in (``set_learning_rate``)."""
+    the parameters of ``output`` (the output layer, one of ``model``'s modules) form a second group
+    whose ``lr_scale`` the schedule multiplies in (``set_learning_rate``)."""
     fused = torch.device(device).type in ("cpu", "cuda")
     if output_lr_scale == 1.0:  # one group, as every run before the option
         return torch.optim.Adam(model.parameters(), lr=lr, fused=fused)
-    named = list(model.named_parameters())
-    is_out = [name.split(".")[-2] == "out" for name, _ in named]
+    if output is None:
+        raise ValueError("output_lr_scale needs the output layer (output=)")
+    own = {id(p) for p in output.parameters()}
     groups = [
-        {"params": [p for (_, p), o in zip(named, is_out) if not o], "lr_scale": 1.0},
-        {"params": [p for (_, p), o in zip(named, is_out) if o], "lr_scale": output_lr_scale},
+        {"params": [p for p in model.parameters() if id(p) not in own], "lr_scale": 1.0},
+        {"params": [p for p in model.parameters() if id(p) in own], "lr_scale": output_lr_scale},
     ]
+    if len(groups[1]["params"]) != len(own):
+        raise ValueError("output must be one of the model's modules")
     return torch.optim.Adam(groups, lr=lr, fused=fused)
 
 
@@ -543,7 +550,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
     trainee = TrainingNet(model)
-    optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale)
+    optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:
         model.load_state_dict(ckpt.get("train_model", ckpt["model"]))
         optimizer.load_state_dict(ckpt["optimizer"])
