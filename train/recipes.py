@@ -30,7 +30,7 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "guitar": (dict(contrast=0.1, steps=5900, **_COSINE), {}, "contrast 0.1, cosine decay"),
     "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
-    "knife": (dict(contrast=1.0, steps=5900, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "knife": (dict(contrast=1.0, steps=3000, **_COSINE), {}, "contrast 1.0, cosine decay over 3,000 steps"),
     "mug": (
         dict(contrast=0.1, output_lr_scale=0.3, steps=4000, **_COSINE),
         {},
