@@ -24,8 +24,8 @@ def test_recipes_hold_their_rows_settings() -> None:
     assert knife.weights.template_normal == pytest.approx(1e-4)  # from the template file
     plane = recipe("airplane")
     assert (plane.lr, plane.output_lr_scale, plane.ema, plane.lr_schedule, plane.weights.collision) == (
-        1e-4,
-        0.3,
+        3e-4,
+        0.1,
         0.999,
         "cosine",
         3.0,

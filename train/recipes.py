@@ -21,9 +21,9 @@ _COSINE = dict(lr_schedule="cosine")
 # category -> (fields on top of _SHARED, loss weights on top of the template's, what it is)
 _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "airplane": (
-        dict(lr=1e-4, output_lr_scale=0.3, ema=0.999, contrast=1.0, steps=6000, **_COSINE),
+        dict(lr=3e-4, output_lr_scale=0.1, ema=0.999, contrast=1.0, steps=6000, **_COSINE),
         {"collision": 3.0},
-        "cosine decay from 1e-4, the output layer at 0.3 of it, collision weight 3, weight average 0.999",
+        "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 3, weight average 0.999",
     ),
     "bathtub": (dict(contrast=0.1, steps=5000, **_COSINE), {}, "contrast 0.1, cosine decay"),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
