@@ -25,7 +25,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         {"collision": 3.0},
         "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 3, weight average 0.999",
     ),
-    "bathtub": (dict(contrast=0.1, steps=5000, **_COSINE), {}, "contrast 0.1, cosine decay"),
+    "bathtub": (
+        dict(lr=3e-4, output_lr_scale=0.1, contrast=0.1, steps=5000, **_COSINE),
+        {},
+        "contrast 0.1, cosine decay from 3e-4, the output layer at 0.1 of it",
+    ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "guitar": (dict(contrast=0.1, steps=5900, **_COSINE), {}, "contrast 0.1, cosine decay"),
