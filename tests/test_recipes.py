@@ -28,7 +28,7 @@ def test_recipes_hold_their_rows_settings() -> None:
         0.1,
         0.999,
         "cosine",
-        3.0,
+        0.3,
     )
     # the budget: at most 6,000 steps of batch 8 for every category
     assert all(recipe(name).steps <= 6000 and recipe(name).batch_size == 8 for name in RECIPES)
@@ -57,7 +57,7 @@ def test_fit_recipe_flag_takes_the_recipe_and_flags_override_it() -> None:
     assert s == recipe("knife", "d", "o")
     s = _fit(["--recipe", "airplane", "--dataset", "d", "--out", "o", "--steps=50", "--lr", "3e-5", "--w-flat", "3"])
     assert (s.steps, s.lr, s.weights.flat) == (50, 3e-5, 3.0)
-    assert (s.ema, s.weights.collision) == (0.999, 3.0)  # the rest stays the recipe's
+    assert (s.ema, s.weights.collision) == (0.999, 0.3)  # the rest stays the recipe's
 
 
 def test_fit_without_a_recipe_still_needs_its_category_and_template() -> None:

@@ -22,8 +22,8 @@ _COSINE = dict(lr_schedule="cosine")
 _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "airplane": (
         dict(lr=3e-4, output_lr_scale=0.1, ema=0.999, contrast=1.0, steps=6000, **_COSINE),
-        {"collision": 3.0},
-        "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 3, weight average 0.999",
+        {"collision": 0.3},
+        "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 0.3, weight average 0.999",
     ),
     "bathtub": (
         dict(lr=3e-4, output_lr_scale=0.1, contrast=0.1, steps=5000, **_COSINE),
