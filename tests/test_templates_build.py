@@ -289,3 +289,21 @@ def test_a_thin_box_snapped_onto_the_last_grid_line_keeps_its_cells():
     boxes = [B("fin", [0, 0, 0], [1, 1, 1]), B("tail", [0.2, 1.0, 0.2], [0.8, 1.02, 0.8])]
     lat = build_lattice(boxes, 0.05)
     assert (lat.owner == lat.labels.index("tail")).any()
+
+
+def test_wheels_snapped_into_the_body_are_refused_and_the_shipped_car_keeps_them():
+    from train.templates.authoring.budget import candidates, groups_protrude
+
+    # a body with four wheels whose bottoms hang 0.08 below it (as the procedural car's do)
+    boxes = [B("body", [-0.4, -0.2, -0.9], [0.4, 0.1, 0.9])]
+    for lab, z in (("wheel_front", -0.6), ("wheel_rear", 0.5)):
+        boxes.append(B(lab, [0.25, -0.28, z - 0.18], [0.4, 0.05, z + 0.18]))
+    groups = (("wheels", ("wheel_front", "wheel_rear")),)
+    fine = template_from_boxes(boxes, "car", TemplateSettings(snap_tol=0.01, part_groups=groups))
+    coarse = template_from_boxes(boxes, "car", TemplateSettings(snap_tol=0.1, part_groups=groups))
+    assert groups_protrude(fine) and not groups_protrude(coarse)  # 0.08 < 0.1: bottoms snapped away
+    settings = TemplateSettings(part_groups=groups)
+    target = np.random.default_rng(0).uniform(-0.5, 0.5, (500, 3))
+    cands = candidates(boxes, target, settings, "car", 0, snap_tols=(0.01, 0.1), min_volumes=(0.0,))
+    assert {c.coarsening.snap_tol for c in cands} == {0.01}
+    assert groups_protrude(load_template_file(DATA_DIR / "car.json"))
