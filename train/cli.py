@@ -164,6 +164,7 @@ def _run(a: argparse.Namespace) -> None:
                 cad_check=e.cad_check,
                 blind_dataset=e.blind_from,
                 leave_out=tuple(e.leave_out),
+                variant=e.variant,
             )
         print(format_table(res))
         print(f"saved {e.out_path()}")

@@ -48,7 +48,10 @@ class DataSettings:
     # training also returns "pair_images" (1, S, S): another drawing of the same model (another
     # view or pencil variant than the first one drawn), for the contrastive term
     pair: bool = setting(False, "also return another drawing of the same model (the contrastive term)")
-    eval_views: int = setting(1, "evaluation uses views 0..eval_views-1, variant 0")
+    eval_views: int = setting(1, "evaluation uses views 0..eval_views-1")
+    eval_variant: int = setting(
+        0, "evaluation draws this pencil variant of each view (0: the dark, thin line drawing; 1: the light, broad, shaded one)"
+    )
     n_points: int = setting(7000, "target surface points per shape")
     image_size: int = setting(128, "sketches are resized to this square size")
     shuffle_buffer: int = setting(64, "samples held for shuffling the stream")
@@ -59,6 +62,8 @@ class DataSettings:
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"DataSettings.{name} must be an integer >= 1, got {value!r}")
+        if not (isinstance(self.eval_variant, int) and self.eval_variant >= 0):
+            raise ValueError(f"DataSettings.eval_variant must be an integer >= 0, got {self.eval_variant!r}")
 
 
 class NoShards(UsageError, ModelError):
@@ -198,6 +203,14 @@ def sketch_table(raw: dict) -> dict[int, list[str]]:
     return {v: sorted(names) for v, names in sorted(table.items())}
 
 
+def _variant(names: list[str], variant: int, key: str) -> str:
+    """The member of one view's sketches drawn as pencil ``variant``."""
+    for name in names:
+        if sketch_view_variant(name)[1] == variant:
+            return name
+    raise ModelError(key, f"has no pencil variant {variant} (its views have {len(names)}: 0..{len(names) - 1})")
+
+
 def decode_sample(
     raw: dict,
     settings: DataSettings,
@@ -231,7 +244,7 @@ def decode_sample(
             others = [m for v in views for m in table[v] if m != names[0]] or [names[0]]
             pair_name = others[int(rng.integers(len(others)))]
     else:
-        names = [table[v][0] for v in views[: settings.eval_views]]
+        names = [_variant(table[v], settings.eval_variant, key) for v in views[: settings.eval_views]]
         flip = False
         idx = rng_for(0, "eval-points", key).choice(
             len(points), size=settings.n_points, replace=len(points) < settings.n_points

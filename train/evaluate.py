@@ -134,6 +134,9 @@ class EvaluateSettings:
         "(TORCS car bodies have no wheels: --leave-out wheel_front wheel_rear)",
     )
     views: int = setting(1, "views per sample the network sees")
+    variant: int = setting(
+        0, "pencil variant of each view (0: the dark, thin line drawing; 1: the light, broad, shaded one)"
+    )
     tau: tuple[float, ...] = setting((0.02, 0.05), "F-score distance thresholds (unit-sphere frame)")
     limit: int | None = setting(None, "evaluate at most this many samples (default: all)")
     out: str | None = setting(None, "JSON path (default: eval_<checkpoint>_<split>.json next to the checkpoint)")
@@ -181,6 +184,7 @@ def evaluate(
     cad_check: int = 0,
     blind_dataset: str | Path | None = None,
     leave_out: tuple[str, ...] = (),
+    variant: int = 0,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
     With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
@@ -189,10 +193,13 @@ def evaluate(
     train split (default ``dataset``'s): on meshes the network never saw, it is its own training
     data's mean output that the network must beat. ``leave_out``: patch labels measured as absent
     in every prediction (model, template and blind alike), for targets known to lack those parts:
-    the TORCS car bodies have no wheels (the game adds its own)."""
+    the TORCS car bodies have no wheels (the game adds its own). ``variant``: the pencil variant
+    drawn of each view, for the sketches and the blind mean alike."""
     check_evaluate_args(views, taus, limit)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
+    if not (isinstance(variant, int) and variant >= 0):
+        raise UsageError(f"variant must be an integer >= 0, got {variant!r} (--variant)")
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     try:
@@ -203,7 +210,7 @@ def evaluate(
     # the same evaluation samples on every call, and for the network as for the template
     baselines = ("model", "template", "blind")
     generators = {name: torch.Generator().manual_seed(0) for name in baselines}
-    data = DataSettings(eval_views=views, n_points=s.n_points, image_size=s.image_size)
+    data = DataSettings(eval_views=views, eval_variant=variant, n_points=s.n_points, image_size=s.image_size)
     cat = category or s.category
     blind = blind_output(model, blind_dataset or dataset, cat, data, batch_size)[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
@@ -228,6 +235,7 @@ def evaluate(
         **({"left_out": sorted(leave_out)} if leave_out else {}),
         "samples": count,
         "views": views,
+        "variant": variant,
         "fscore_taus": list(taus),
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},
