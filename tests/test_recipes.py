@@ -36,6 +36,7 @@ def test_recipes_hold_their_rows_settings() -> None:
     assert recipe("bathtub").match_normals == pytest.approx(0.1) and recipe("mug").contrast == 0.1
     assert (recipe("bathtub").lr, recipe("bathtub").output_lr_scale) == (3e-4, 0.1)
     assert (recipe("mug").output_lr_scale, recipe("mug").steps) == (0.3, 4000)
+    assert (recipe("guitar").weights.collision, recipe("guitar").contrast) == (0.3, 0.1)
 
 
 def test_unknown_recipe_names_the_choices() -> None:
