@@ -292,7 +292,7 @@ def test_a_thin_box_snapped_onto_the_last_grid_line_keeps_its_cells():
 
 
 def test_wheels_snapped_into_the_body_are_refused_and_the_shipped_car_keeps_them():
-    from train.templates.authoring.budget import candidates, groups_protrude
+    from train.templates.authoring.budget import candidates, protruding_labels
 
     # a body with four wheels whose bottoms hang 0.08 below it (as the procedural car's do)
     boxes = [B("body", [-0.4, -0.2, -0.9], [0.4, 0.1, 0.9])]
@@ -301,9 +301,26 @@ def test_wheels_snapped_into_the_body_are_refused_and_the_shipped_car_keeps_them
     groups = (("wheels", ("wheel_front", "wheel_rear")),)
     fine = template_from_boxes(boxes, "car", TemplateSettings(snap_tol=0.01, part_groups=groups))
     coarse = template_from_boxes(boxes, "car", TemplateSettings(snap_tol=0.1, part_groups=groups))
-    assert groups_protrude(fine) and not groups_protrude(coarse)  # 0.08 < 0.1: bottoms snapped away
+    assert protruding_labels(fine) == {"wheel_front", "wheel_rear"}
+    assert protruding_labels(coarse) == set()  # 0.08 < 0.1: the bottoms snapped onto the body's
     settings = TemplateSettings(part_groups=groups)
     target = np.random.default_rng(0).uniform(-0.5, 0.5, (500, 3))
     cands = candidates(boxes, target, settings, "car", 0, snap_tols=(0.01, 0.1), min_volumes=(0.0,))
     assert {c.coarsening.snap_tol for c in cands} == {0.01}
-    assert groups_protrude(load_template_file(DATA_DIR / "car.json"))
+    assert protruding_labels(load_template_file(DATA_DIR / "car.json")) == {"wheel_front", "wheel_rear"}
+
+
+def test_a_part_group_inside_the_rest_from_the_start_refuses_no_construction():
+    from train.templates.authoring.budget import candidates
+
+    # a user's "cushion" group on a seat, within the box of the back and legs: never sticks out
+    boxes = [
+        B("seat", [-0.5, 0.0, -0.5], [0.5, 0.1, 0.5]),
+        B("back", [-0.5, 0.1, 0.4], [0.5, 1.0, 0.5]),
+        B("leg", [0.4, -0.6, -0.5], [0.5, 0.0, -0.4]),
+        B("cushion", [-0.3, 0.1, -0.3], [0.3, 0.15, 0.3]),
+    ]
+    settings = TemplateSettings(optional_labels=(), part_groups=(("soft", ("cushion",)),))
+    target = np.random.default_rng(0).uniform(-0.5, 0.5, (500, 3))
+    cands = candidates(boxes, target, settings, "chair", 0, snap_tols=(0.01, 0.06), min_volumes=(0.0,))
+    assert {c.coarsening.snap_tol for c in cands} == {0.01, 0.06}

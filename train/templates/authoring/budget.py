@@ -8,9 +8,9 @@ dropped, so no airplane loses its tailplane), and merging the labels of
 required parts (``merge_labels``: coplanar faces of different parts can merge, e.g. a guitar's
 body, neck and head; optional parts and part groups keep their own labels). A dropped optional
 part is no longer an option of the template, and a construction in which a part group's part no
-longer sticks out of the rest (a coarse lattice snapping the car's wheels into the body's corners)
-is left out: its patches would be pieces of the body's faces, which no training can pull out into
-wheels. Among the
+longer sticks out of the rest while the finest one's does (a coarse lattice snapping the car's
+wheels into the body's corners) is left out: its patches would be pieces of the body's faces,
+which no training can pull out into wheels. Among the
 constructions within the budget, those keeping the most optional parts are preferred, then the
 one closest to the median model (symmetric Chamfer distance between surface samples, unsquared,
 normalized units) wins.
@@ -107,11 +107,13 @@ def candidates(
     """Every coarsening of the sweep that builds, with its template and Chamfer to ``target``.
 
     A construction that breaks the surface into more pieces than the first one, (symmetric
-    settings) whose points do not all pair up across x = 0, or in which a part of a part group
-    no longer sticks out of the rest (``groups_protrude``) is left out."""
+    settings) whose points do not all pair up across x = 0, or in which a part-group label that
+    sticks out of the rest in the first one no longer does (``protruding_labels``) is left out.
+    Measured against the first construction, so a user's part group that lies within the rest's
+    box to begin with (a chair's cushion) refuses nothing."""
     grouped = sorted({lab for _, labs in settings.part_groups for lab in labs})
     keep = sorted(set(settings.optional_labels) | set(grouped))
-    out, seen, pieces = [], set(), None
+    out, seen, pieces, sticking_out = [], set(), None, None
     for tol, vmin, merge in itertools.product(snap_tols, min_volumes, (False, True)):
         c = Coarsening(tol, vmin, merge)
         cboxes = coarsen_boxes(boxes, c, keep, [lab for lab in settings.optional_labels if lab not in grouped])
@@ -123,31 +125,31 @@ def candidates(
             tpl = template_from_boxes(cboxes, name, dataclasses.replace(settings, snap_tol=tol))
         except ValueError:
             continue  # the tolerance is coarser than the whole shape along an axis
-        n = surface_components(tpl)
+        n, out_labels = surface_components(tpl), protruding_labels(tpl)
         pieces = n if pieces is None else pieces
-        if n > pieces or (settings.symmetric and not mirror_complete(tpl)) or not groups_protrude(tpl):
+        sticking_out = out_labels if sticking_out is None else sticking_out
+        if n > pieces or (settings.symmetric and not mirror_complete(tpl)) or not sticking_out <= out_labels:
             continue
         rng = np.random.default_rng([seed, 7919])
         out.append(Candidate(c, tpl, template_chamfer(tpl, target, rng)))
     return out
 
 
-def groups_protrude(tpl: Template, tol: float = 1e-6) -> bool:
-    """Does every label of every part group own a patch lying wholly outside the bounding box of
-    the patches outside the groups? A car's wheels do (their bottoms hang below the body); wheels
+def protruding_labels(tpl: Template, tol: float = 1e-6) -> frozenset[str]:
+    """The part-group labels owning a patch that lies wholly outside the bounding box of the
+    patches outside the groups. A car's wheels do (their bottoms hang below the body); wheels
     snapped into the body's corners, or left and right wheels merged into one slab, do not."""
-    labels = [lab for _, labs in tpl.part_groups.items() for lab in labs]
-    if not labels:
-        return True
-    corners = tpl.patches_from_params(tpl.initial_params()[None])[0].detach().numpy()
-    corners = corners.reshape(tpl.num_patches, -1, 3)
+    labels = [lab for labs in tpl.part_groups.values() for lab in labs]
     owner = np.array(tpl.patch_labels)
-    rest = corners[~np.isin(owner, labels)].reshape(-1, 3)
-    if not len(rest):
-        return True
+    grouped = np.isin(owner, labels)
+    if not labels or grouped.all():
+        return frozenset()
+    points = tpl.patches_from_params(tpl.initial_params()[None])[0].detach().numpy()
+    points = points.reshape(tpl.num_patches, -1, 3)
+    rest = points[~grouped].reshape(-1, 3)
     lo, hi = rest.min(axis=0) - tol, rest.max(axis=0) + tol
-    outside = ((corners < lo) | (corners > hi)).any(axis=2).all(axis=1)  # (P,): every point outside
-    return all(bool(outside[owner == lab].any()) for lab in labels)
+    outside = ((points < lo) | (points > hi)).any(axis=2).all(axis=1)  # (P,): every point outside
+    return frozenset(lab for lab in labels if outside[owner == lab].any())
 
 
 def mirror_complete(tpl: Template) -> bool:
