@@ -50,7 +50,8 @@ class DataSettings:
     pair: bool = setting(False, "also return another drawing of the same model (the contrastive term)")
     eval_views: int = setting(1, "evaluation uses views 0..eval_views-1")
     eval_variant: int = setting(
-        0, "evaluation draws this pencil variant of each view (0: the dark, thin line drawing; 1: the light, broad, shaded one)"
+        0,
+        "evaluation draws this pencil variant of each view (0: the dark, thin line drawing; 1: the light, broad, shaded one)",
     )
     n_points: int = setting(7000, "target surface points per shape")
     image_size: int = setting(128, "sketches are resized to this square size")

@@ -35,7 +35,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
-    "guitar": (dict(contrast=0.1, steps=5900, **_COSINE), {"collision": 0.3}, "contrast 0.1, cosine decay, collision weight 0.3"),
+    "guitar": (
+        dict(contrast=0.1, steps=5900, **_COSINE),
+        {"collision": 0.3},
+        "contrast 0.1, cosine decay, collision weight 0.3",
+    ),
     "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "knife": (dict(contrast=1.0, steps=3000, **_COSINE), {}, "contrast 1.0, cosine decay over 3,000 steps"),
     "mug": (
