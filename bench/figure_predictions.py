@@ -1,7 +1,9 @@
 """Figure: test sketch | prediction | ground truth, one row per test model.
 
 Usage: .venv/bin/python bench/figure_predictions.py --checkpoint RUN/best.pt --dataset DS --work-dir WORK
-       --out docs/images/quality_<category>.png [--rows 4] [--blind]
+       --out docs/images/quality_<category>.png [--rows 4] [--blind] [--variant 0]
+``--variant K`` draws each row's sketch in pencil variant K (0: the dark line drawing, 1: the
+light, shaded one), and takes the blind mean over the same variant, as ``evaluate --variant`` does.
 Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``). ``--blind`` adds
 the sketch-blind baseline of ``train evaluate`` (the mean network output over the train split) as a
 last column, so a reader sees what the drawing changed in each prediction.
@@ -23,7 +25,7 @@ from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from pipeline.sources.mesh_io import read_ply
-from train.data import DataSettings, read_png, sketch_table, to_network
+from train.data import DataSettings, read_png, sketch_table, to_network, variant_member
 from train.evaluate import blind_output
 from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
@@ -31,20 +33,24 @@ from train.objective import Objective
 
 
 @torch.no_grad()
-def figure(checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256, blind: bool = False) -> np.ndarray:
+def figure(
+    checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256, blind: bool = False, variant: int = 0
+) -> np.ndarray:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     objective = Objective(template, 500)
     cols = 4 if blind else 3
     mean_patches = None
     if blind:
-        mean = blind_output(model, dataset, s.category, DataSettings(eval_views=1, image_size=s.image_size))
+        mean = blind_output(
+            model, dataset, s.category, DataSettings(eval_views=1, eval_variant=variant, image_size=s.image_size)
+        )
         mean_patches = template.patches_from_params(mean[None])[0]
     urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
-        name = sketch_table(raw)[0][0]
+        name = variant_member(sketch_table(raw)[0], variant, meta["model_id"])
         sketch = read_png(raw[name], s.image_size)
         x = torch.from_numpy(to_network(sketch))[None, None]
         patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
@@ -71,8 +77,9 @@ def main() -> None:
     ap.add_argument("--out", required=True)
     ap.add_argument("--rows", type=int, default=4)
     ap.add_argument("--blind", action="store_true", help="add the sketch-blind mean shape as a last column")
+    ap.add_argument("--variant", type=int, default=0, help="pencil variant drawn (0: dark lines, 1: light, shaded)")
     a = ap.parse_args()
-    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows, blind=a.blind))
+    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows, blind=a.blind, variant=a.variant))
     print(a.out)
 
 

@@ -6,7 +6,12 @@ frame). A network that reads the sketch gives different-model distances well abo
 variant distances (ratio >> 1); a network that outputs its mean shape gives ratio ~1 and tiny
 distances.
 
+``--variant K`` reads pencil variant K (0: the dark line drawing, 1: the light, shaded one) for
+the different-model and other-view distances; the variant distance is always K against the next
+variant of the same view.
+
 Usage: .venv/bin/python bench/probe_sketch_response.py --checkpoint RUN/best.pt --dataset DS [--split test]
+       [--variant 0]
 """
 
 from __future__ import annotations
@@ -20,22 +25,30 @@ import numpy as np
 import torch
 import webdataset as wds
 
-from train.data import read_png, sketch_table, to_network
+from train.data import read_png, sketch_table, to_network, variant_member
 from train.fit import load_run
 
 
 @torch.no_grad()
-def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64) -> dict[str, float]:
+def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64, variant: int = 0) -> dict[str, float]:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
     urls = sorted(glob.glob(str(Path(dataset) / s.category / f"{split}-*.tar")))
-    images = {"v0a": [], "v0b": [], "v1a": []}  # view 0 variant 0 / view 0 variant 1 / view 1 variant 0
+    # view 0 in variant K / view 0 in the next variant / view 1 in variant K
+    images = {"v0a": [], "v0b": [], "v1a": []}
     for raw in wds.WebDataset(urls, shardshuffle=False):
         table = sketch_table(raw)
         views = list(table)
         if len(views) < 2 or len(table[views[0]]) < 2:
             continue
-        for key, name in (("v0a", table[views[0]][0]), ("v0b", table[views[0]][1]), ("v1a", table[views[1]][0])):
+        key = raw["__key__"]
+        other = (variant + 1) % len(table[views[0]])
+        chosen = (
+            ("v0a", variant_member(table[views[0]], variant, key)),
+            ("v0b", variant_member(table[views[0]], other, key)),
+            ("v1a", variant_member(table[views[1]], variant, key)),
+        )
+        for key, name in chosen:
             images[key].append(to_network(read_png(raw[name], s.image_size)))
         if len(images["v0a"]) >= limit:
             break
@@ -65,9 +78,11 @@ def main() -> None:
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--dataset", required=True)
     ap.add_argument("--split", default="test")
+    ap.add_argument("--variant", type=int, default=0, help="pencil variant read (0: dark lines, 1: light, shaded)")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    print(json.dumps(response(a.checkpoint, a.dataset, a.split), indent=1))
+    out = response(a.checkpoint, a.dataset, a.split, variant=a.variant)
+    print(json.dumps({"variant": a.variant, **out}, indent=1))
 
 
 if __name__ == "__main__":

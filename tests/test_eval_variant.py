@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import POINTS_MEMBER, sketch_name
-from train.data import DataSettings, decode_sample
+from train.data import DataSettings, decode_sample, variant_member
 
 
 def _png(gray: int) -> bytes:
@@ -45,3 +45,12 @@ def test_a_variant_the_dataset_lacks_is_an_error_naming_the_sample() -> None:
         _images(raw, 1)
     with pytest.raises(ValueError, match="eval_variant"):
         DataSettings(eval_variant=-1)
+
+
+def test_variant_member_picks_by_the_variant_in_the_name_not_by_position() -> None:
+    # the probe and the figure script pick their drawings with it, as evaluation does
+    names = [sketch_name(3, 1), sketch_name(3, 0)]
+    assert variant_member(names, 0, "knife_00007") == sketch_name(3, 0)
+    assert variant_member(names, 1, "knife_00007") == sketch_name(3, 1)
+    with pytest.raises(ModelError, match="knife_00007.*no pencil variant 2"):
+        variant_member(names, 2, "knife_00007")

@@ -204,7 +204,7 @@ def sketch_table(raw: dict) -> dict[int, list[str]]:
     return {v: sorted(names) for v, names in sorted(table.items())}
 
 
-def _variant(names: list[str], variant: int, key: str) -> str:
+def variant_member(names: list[str], variant: int, key: str) -> str:
     """The member of one view's sketches drawn as pencil ``variant``."""
     for name in names:
         if sketch_view_variant(name)[1] == variant:
@@ -245,7 +245,7 @@ def decode_sample(
             others = [m for v in views for m in table[v] if m != names[0]] or [names[0]]
             pair_name = others[int(rng.integers(len(others)))]
     else:
-        names = [_variant(table[v], settings.eval_variant, key) for v in views[: settings.eval_views]]
+        names = [variant_member(table[v], settings.eval_variant, key) for v in views[: settings.eval_views]]
         flip = False
         idx = rng_for(0, "eval-points", key).choice(
             len(points), size=settings.n_points, replace=len(points) < settings.n_points
