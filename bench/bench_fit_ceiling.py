@@ -40,11 +40,14 @@ def _plain_chamfer(objective: Objective, params: torch.Tensor, batch: dict) -> t
     return objective.batch_terms(params, batch, objective.sample_st(None), w, training=False)["chamfer"]
 
 
-def fit_to_targets(objective: Objective, batch: dict, steps: int, lr: float = 0.01) -> torch.Tensor:
+def fit_to_targets(
+    objective: Objective, batch: dict, steps: int, lr: float = 0.01, collision: float = 0.0
+) -> torch.Tensor:
     """The template fitted to each target of ``batch`` (B, D): Adam on the parameters of all items
-    at once, the training loss without the collision term (for speed)."""
+    at once, the training loss with the collision term at weight ``collision`` (default off, for
+    speed: the ceiling is about L_Ch)."""
     template = objective.template
-    weights = template_weights(template.regularizers, {"collision": 0.0})
+    weights = template_weights(template.regularizers, {"collision": collision})
     params = template.initial_params()[None].expand(len(batch["key"]), -1).clone().requires_grad_(True)
     opt = torch.optim.Adam([params], lr=lr)
     gen = torch.Generator().manual_seed(0)
