@@ -104,6 +104,12 @@ class FitSettings:
         "keep an exponential moving average of the weights with this decay (e.g. 0.999) and "
         "validate, keep and hand out the average instead of the training weights (0: off)",
     )
+    shape_basis: int = setting(
+        0,
+        "fit the template to this many training models before training and let the output layer "
+        "move it along the fits' principal directions (train/shape_basis.py; 0: one output per "
+        "parameter, as in the paper)",
+    )
     fit_anneal_steps: int = setting(
         0,
         "the fit term's weight falls linearly from --w-fit to 0 over this many steps, then stays 0 "
@@ -125,7 +131,7 @@ class FitSettings:
             "log_every",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(
@@ -249,6 +255,32 @@ def template_from_checkpoint(ckpt: dict) -> Template:
     return load_template(ckpt["settings"]["template"])
 
 
+def saved_basis(ckpt: dict) -> torch.Tensor | None:
+    """The output layer's shape basis a checkpoint's network reads out in (None: a plain layer)."""
+    basis = ckpt["model"].get("out.basis") if isinstance(ckpt.get("model"), dict) else None
+    return basis if isinstance(basis, torch.Tensor) else None
+
+
+def _new_basis(settings: FitSettings, template: Template, info: DistInfo, out: Path) -> torch.Tensor | None:
+    """A fresh run's shape basis (``--shape-basis N``), its summary written to ``out/shape_basis.json``.
+    Every rank fits the same models alike; DDP starts all ranks from rank 0's buffers anyway."""
+    if not settings.shape_basis:
+        return None
+    from train.shape_basis import shape_basis
+
+    basis = shape_basis(settings.dataset, settings.category, template, settings.shape_basis, settings.seed)
+    if info.is_main:
+        summary = {
+            "shapes": basis.shapes,
+            "directions": int(basis.directions.shape[0]),
+            "explained": round(basis.explained, 4),
+            "cpu_s": basis.cpu_s,
+        }
+        out.mkdir(parents=True, exist_ok=True)
+        write_bytes(out / "shape_basis.json", dumps_json(summary).encode())
+    return torch.from_numpy(basis.directions)
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainedRun:
     """A checkpoint ready to use: the network (eval mode), the template it trained with, its
@@ -293,7 +325,7 @@ def load_run(path: str | Path) -> TrainedRun:
     ckpt = load_checkpoint(path)
     settings = _saved_settings(path, ckpt)
     template = _saved_template(path, ckpt)
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=saved_basis(ckpt))
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
@@ -547,8 +579,11 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         if ckpt is not None and "framing" in ckpt
         else shard_framing(settings.dataset, settings.category, settings.image_size)
     )
+    basis = saved_basis(ckpt) if ckpt is not None else _new_basis(settings, template, info, out)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width).to(info.device)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=basis).to(
+        info.device
+    )
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:

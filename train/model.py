@@ -1,7 +1,9 @@
 """Sketch -> patch parameters network: ResNet-18 per view (optionally narrower), max-pool over views, MLP head.
 
 The head's output layer starts with zero weights and bias = the template's parameters, so an
-untrained network predicts the template exactly (the paper's initialization).
+untrained network predicts the template exactly (the paper's initialization). With a shape basis
+(``train.shape_basis``) the output layer reads out along the basis' directions instead of one
+control-point coordinate per output (:class:`BasisReadout`); it starts at the template alike.
 """
 
 from __future__ import annotations
@@ -14,10 +16,36 @@ from train.resnet import ResNet18
 HIDDEN = (1024, 512, 256)
 
 
+class BasisReadout(nn.Module):
+    """features (B, F) -> parameters (B, D) = bias + (features @ weight.T) @ basis.
+
+    ``basis`` (K, D) is a fixed buffer (a shape basis' directions, each one standard deviation of
+    the fitted shapes long); ``weight`` (K, F) starts at zero and ``bias`` (D,) at the template,
+    so an untrained network predicts the template, as with a plain output layer."""
+
+    def __init__(self, in_features: int, basis: torch.Tensor, initial_params: torch.Tensor):
+        super().__init__()
+        basis = torch.as_tensor(basis, dtype=torch.float32)
+        if basis.dim() != 2 or basis.shape[1] != initial_params.numel():
+            raise ValueError(f"basis must be (K, {initial_params.numel()}), got {tuple(basis.shape)}")
+        self.weight = nn.Parameter(torch.zeros(basis.shape[0], in_features))
+        self.bias = nn.Parameter(initial_params.clone())
+        self.register_buffer("basis", basis.clone())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.addmm(self.bias, x @ self.weight.t(), self.basis)
+
+
 class SketchToPatches(nn.Module):
     """images (B, V, 1, H, W) [+ view mask (B, V)] -> template parameters (B, D)."""
 
-    def __init__(self, initial_params: torch.Tensor, hidden: tuple[int, ...] = HIDDEN, encoder_width: int = 64):
+    def __init__(
+        self,
+        initial_params: torch.Tensor,
+        hidden: tuple[int, ...] = HIDDEN,
+        encoder_width: int = 64,
+        basis: torch.Tensor | None = None,
+    ):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
@@ -29,6 +57,9 @@ class SketchToPatches(nn.Module):
             nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True))
             for a, b in zip(dims[:-1], dims[1:])
         )
+        if basis is not None:
+            self.out: nn.Module = BasisReadout(dims[-1], basis, initial_params)
+            return
         self.out = nn.Linear(dims[-1], self.num_params)
         nn.init.zeros_(self.out.weight)
         with torch.no_grad():

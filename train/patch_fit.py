@@ -108,15 +108,12 @@ def plain_chamfer(objective: Objective, params: torch.Tensor, batch: dict) -> to
     return objective.batch_terms(params, batch, objective.sample_st(None), w, training=False)["chamfer"]
 
 
-def fit_targets(
-    template: Template, targets: list[Target], settings: PatchFitSettings, seed: int, category: str
-) -> list[Fitted]:
-    """The template fitted to every target at once (see the module's docstring)."""
-    objective = Objective(template, settings.points, match_normals=template.match_normals)
-    batch = _batch(targets)
+def fit_batch(objective: Objective, batch: dict, settings: PatchFitSettings, seed: int, category: str) -> torch.Tensor:
+    """The template's parameters (B, D) fitted to each target of ``batch`` (the loader's layout):
+    Adam from the template, the training loss with the collision term at ``settings.collision``."""
+    template = objective.template
     weights = template_weights(template.regularizers, {"collision": settings.collision})
-    start = template.initial_params()[None].expand(len(targets), -1).clone()
-    params = start.clone().requires_grad_(True)
+    params = template.initial_params()[None].expand(len(batch["points"]), -1).clone().requires_grad_(True)
     opt = torch.optim.Adam([params], lr=settings.lr)
     gen = torch.Generator().manual_seed(derive_seed(seed, "fit", category) % 2**63)
     for _ in range(settings.steps):
@@ -125,7 +122,17 @@ def fit_targets(
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-    params = params.detach()
+    return params.detach()
+
+
+def fit_targets(
+    template: Template, targets: list[Target], settings: PatchFitSettings, seed: int, category: str
+) -> list[Fitted]:
+    """The template fitted to every target at once (see the module's docstring)."""
+    objective = Objective(template, settings.points, match_normals=template.match_normals)
+    batch = _batch(targets)
+    start = template.initial_params()[None].expand(len(targets), -1).clone()
+    params = fit_batch(objective, batch, settings, seed, category)
     with torch.no_grad():
         before, after = plain_chamfer(objective, start, batch), plain_chamfer(objective, params, batch)
     masks = objective.patch_mask(batch["meta"], torch.device("cpu"))
