@@ -33,7 +33,7 @@ from pipeline.core.settings_io import SettingError, flag_name, from_dict, settin
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
-from train.losses.contrast import info_nce
+from train.losses.contrast import CodeQueue, info_nce, model_ids
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
@@ -94,6 +94,12 @@ class FitSettings:
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off)",
     )
+    contrast_queue: int = setting(
+        0,
+        "with --contrast: keep the codes of this many earlier drawings as extra negatives of the "
+        "contrastive term (a memory bank; drawings of a batch item's own model are left out; "
+        "0: the batch's drawings only)",
+    )
     clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
@@ -109,6 +115,11 @@ class FitSettings:
         "fit the template to this many training models before training and let the output layer "
         "move it along the fits' principal directions (train/shape_basis.py; 0: one output per "
         "parameter, as in the paper)",
+    )
+    basis_directions: int = setting(
+        128,
+        "with --shape-basis: at most this many principal directions (those holding 99 %% of the "
+        "fits' variance, if fewer); fewer directions are a stronger prior and fewer outputs to learn",
     )
     fit_anneal_steps: int = setting(
         0,
@@ -129,9 +140,10 @@ class FitSettings:
             "encoder_width",
             "checkpoint_every",
             "log_every",
+            "basis_directions",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis", "contrast_queue"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(
@@ -268,7 +280,14 @@ def _new_basis(settings: FitSettings, template: Template, info: DistInfo, out: P
         return None
     from train.shape_basis import shape_basis
 
-    basis = shape_basis(settings.dataset, settings.category, template, settings.shape_basis, settings.seed)
+    basis = shape_basis(
+        settings.dataset,
+        settings.category,
+        template,
+        settings.shape_basis,
+        settings.seed,
+        max_directions=settings.basis_directions,
+    )
     if info.is_main:
         summary = {
             "shapes": basis.shapes,
@@ -503,6 +522,7 @@ def train_step(
     contrast: float = 0.0,
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
+    queue: CodeQueue | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -525,7 +545,12 @@ def train_step(
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
     if contrast > 0:
-        terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
+        negatives = blocked = None
+        if queue is not None:  # earlier drawings as extra negatives, then this batch's queued
+            ids = model_ids(batch["key"])
+            negatives, blocked = queue.negatives(ids)
+            queue.push(torch.cat([out["codes"], out["pair_codes"]]), torch.cat([ids, ids]))
+        terms["contrast"] = info_nce(out["codes"], out["pair_codes"], negatives=negatives, blocked=blocked)
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
@@ -647,6 +672,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     last = None  # null in the result when no step runs (a resume already at --steps)
     kept = start if ckpt is not None else None  # the step checkpoint.pt holds
     guard = DivergenceGuard(info.device, start)  # the non-finite check, read where the loop reads anyway
+    queue = CodeQueue(settings.contrast_queue) if settings.contrast > 0 and settings.contrast_queue else None
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch, first = (first, None) if first is not None else (next(stream), None)
@@ -671,6 +697,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.contrast,
                 settings.clip_grad,
                 guard,
+                queue,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()

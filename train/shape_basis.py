@@ -99,10 +99,16 @@ def fitted_shapes(
 
 
 def shape_basis(
-    dataset: str, category: str, template: Template, shapes: int, seed: int = 0, variance: float = 0.99
+    dataset: str,
+    category: str,
+    template: Template,
+    shapes: int,
+    seed: int = 0,
+    variance: float = 0.99,
+    max_directions: int = 128,
 ) -> ShapeBasis:
     """Fit the template to ``shapes`` training models and take their principal directions."""
     t0 = time.process_time()
     fits = fitted_shapes(dataset, category, template, shapes, seed=seed)
-    basis = principal_basis(fits, variance)
+    basis = principal_basis(fits, variance, max_directions)
     return dataclasses.replace(basis, cpu_s=round(time.process_time() - t0, 1))
