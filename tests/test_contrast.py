@@ -14,7 +14,7 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 from train.augmentation import Jitter
 from train.data import DataSettings, make_loader
 from train.fit import FitSettings, fit, load_run
-from train.losses.contrast import CodeQueue, info_nce, model_ids
+from train.losses.contrast import info_nce
 from train.losses.weights import LossWeights
 
 
@@ -39,29 +39,6 @@ def test_info_nce_rewards_matching_pairs_and_pulls_them_together():
     assert info_nce(codes[:1], near[:1]).tolist() == [0.0]  # no negatives, no term
     with pytest.raises(ValueError):
         info_nce(codes, codes[:, :8])
-
-
-def test_queued_negatives_make_the_task_harder_and_leave_out_the_anchors_own_model():
-    g = torch.Generator().manual_seed(1)
-    codes = torch.randn(4, 16, generator=g)
-    pair = codes + 0.3 * torch.randn(4, 16, generator=g)
-    alone = info_nce(codes, pair)
-    # a queued copy of item 0's partner competes with it, unless it is marked as item 0's own model
-    queue = CodeQueue(8)
-    ids = model_ids(["m0", "m1", "m2", "m3"])
-    queue.push(pair[:1], ids[:1])
-    negatives, blocked = queue.negatives(ids)
-    assert blocked.tolist() == [[True], [False], [False], [False]]
-    assert info_nce(codes, pair, negatives=negatives)[0] > alone[0] + 0.5
-    torch.testing.assert_close(info_nce(codes, pair, negatives=negatives, blocked=blocked)[0], alone[0])
-    # many unrelated negatives raise every item's loss (the chance level grows to ln(B + Q))
-    for _ in range(3):
-        queue.push(torch.randn(4, 16, generator=g), model_ids(["x", "y", "z", "w"]))
-    negatives, blocked = queue.negatives(ids)
-    assert negatives.shape == (8, 16)  # the oldest dropped beyond the queue's size
-    assert not blocked[0].any()  # item 0's own code was pushed out
-    assert (info_nce(codes, pair, negatives=negatives, blocked=blocked) >= alone - 1e-6).all()
-    assert info_nce(codes[:1], pair[:1], negatives=negatives).item() > 0  # one item, negatives from the queue
 
 
 def test_loader_pairs_each_sample_with_another_drawing_of_its_model(shards):
@@ -109,12 +86,6 @@ def test_a_run_with_the_contrastive_term_logs_it_and_rebuilds(shards, tmp_path):
     fit(FitSettings(**base, contrast=0.5), progress=False)
     rows = list(csv.DictReader(open(out / "log.csv")))
     assert len(rows) == 3 and all(float(r["contrast"]) > 0 for r in rows)
-    # with a queue the later steps compare against the earlier steps' drawings too: a harder task
-    queued = tmp_path / "queued"
-    fit(FitSettings(**{**base, "out": str(queued)}, contrast=0.5, contrast_queue=16), progress=False)
-    later = [float(r["contrast"]) for r in csv.DictReader(open(queued / "log.csv"))]
-    assert later[0] == pytest.approx(float(rows[0]["contrast"]), rel=1e-5)  # step 1: an empty queue
-    assert later[2] > float(rows[2]["contrast"]) + 0.3
     run = load_run(out / "checkpoint.pt")
     assert run.settings.contrast == 0.5 and run.step == 3
     # off by default: no pair drawings are loaded and the column stays empty

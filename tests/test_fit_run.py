@@ -63,6 +63,7 @@ def test_checkpoints_with_a_removed_setting_load_when_it_was_off(shards, tmp_pat
     fit(settings(shards, out, 1), progress=False)
     ck = load_checkpoint(out / "checkpoint.pt")
     ck["settings"]["encoder_lr"] = None  # a removed option, at its "same as lr" value
+    ck["settings"]["contrast_queue"] = 0  # another, off
     torch.save(ck, out / "old.pt")
     assert load_run(out / "old.pt").step == 1
     ck["settings"]["encoder_lr"] = 1e-3  # it changed the run: still refused, naming the setting

@@ -33,7 +33,7 @@ from pipeline.core.settings_io import SettingError, flag_name, from_dict, settin
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
-from train.losses.contrast import CodeQueue, info_nce, model_ids
+from train.losses.contrast import info_nce
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
@@ -94,12 +94,6 @@ class FitSettings:
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off)",
     )
-    contrast_queue: int = setting(
-        0,
-        "with --contrast: keep the codes of this many earlier drawings as extra negatives of the "
-        "contrastive term (a memory bank; drawings of a batch item's own model are left out; "
-        "0: the batch's drawings only)",
-    )
     clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
@@ -143,7 +137,7 @@ class FitSettings:
             "basis_directions",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis", "contrast_queue"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(
@@ -314,7 +308,9 @@ class TrainedRun:
 
 # Settings removed since, with the value that meant "off": a checkpoint saved with that value
 # loads as if it never had the setting; any other value still fails, naming it.
-_REMOVED_SETTINGS = {"encoder_lr": None}  # a separate encoder learning rate, tried and removed
+# encoder_lr: a separate encoder learning rate; contrast_queue: earlier drawings' codes as extra
+# negatives of the contrastive term (both tried and removed, docs/experiments.md)
+_REMOVED_SETTINGS = {"encoder_lr": None, "contrast_queue": 0}
 
 
 def checkpoint_settings(ckpt: dict) -> FitSettings:
@@ -522,7 +518,6 @@ def train_step(
     contrast: float = 0.0,
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
-    queue: CodeQueue | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -545,12 +540,7 @@ def train_step(
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
     if contrast > 0:
-        negatives = blocked = None
-        if queue is not None:  # earlier drawings as extra negatives, then this batch's queued
-            ids = model_ids(batch["key"])
-            negatives, blocked = queue.negatives(ids)
-            queue.push(torch.cat([out["codes"], out["pair_codes"]]), torch.cat([ids, ids]))
-        terms["contrast"] = info_nce(out["codes"], out["pair_codes"], negatives=negatives, blocked=blocked)
+        terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
@@ -672,7 +662,6 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     last = None  # null in the result when no step runs (a resume already at --steps)
     kept = start if ckpt is not None else None  # the step checkpoint.pt holds
     guard = DivergenceGuard(info.device, start)  # the non-finite check, read where the loop reads anyway
-    queue = CodeQueue(settings.contrast_queue) if settings.contrast > 0 and settings.contrast_queue else None
     t0 = time.perf_counter()
     for step in range(start, settings.steps):
         batch, first = (first, None) if first is not None else (next(stream), None)
@@ -697,7 +686,6 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.contrast,
                 settings.clip_grad,
                 guard,
-                queue,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()
