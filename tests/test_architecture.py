@@ -50,6 +50,8 @@ TRAIN_LEVELS = {
     "train.model": 5,
     "train.objective": 5,
     "train.data": 5,
+    "train.template_fit": 5,  # a template fitted to shapes (the fit stage's and the shape basis' fit)
+    "train.shape_basis": 6,
     "train.fit": 6,
     "train.patch_fit": 7,  # the fit stage (a template fitted to shapes, no network) and its export
     "train.evaluate": 7,

@@ -56,13 +56,12 @@ from pipeline.core.schema import (
     sample_key,
     shard_glob,
 )
-from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import from_dict, setting
 from train.errors import UsageError
 from train.export.units import CadFileSettings
-from train.losses.total import weighted_sum
-from train.losses.weights import LossWeights, template_weights
+from train.losses.weights import LossWeights
 from train.objective import Objective
+from train.template_fit import fit_batch
 from train.templates import Template, load_template, save_template
 
 
@@ -106,23 +105,6 @@ def plain_chamfer(objective: Objective, params: torch.Tensor, batch: dict) -> to
     """(B,) L_Ch as the quality table measures it: nearest points, midpoint grid, no part groups."""
     w = LossWeights(normal=0.0, flat=0.0, collision=0.0, template_normal=0.0, symmetry=0.0)
     return objective.batch_terms(params, batch, objective.sample_st(None), w, training=False)["chamfer"]
-
-
-def fit_batch(objective: Objective, batch: dict, settings: PatchFitSettings, seed: int, category: str) -> torch.Tensor:
-    """The template's parameters (B, D) fitted to each target of ``batch`` (the loader's layout):
-    Adam from the template, the training loss with the collision term at ``settings.collision``."""
-    template = objective.template
-    weights = template_weights(template.regularizers, {"collision": settings.collision})
-    params = template.initial_params()[None].expand(len(batch["points"]), -1).clone().requires_grad_(True)
-    opt = torch.optim.Adam([params], lr=settings.lr)
-    gen = torch.Generator().manual_seed(derive_seed(seed, "fit", category) % 2**63)
-    for _ in range(settings.steps):
-        terms = objective.batch_terms(params, batch, objective.sample_st(gen), weights)
-        loss = weighted_sum(terms, weights).sum()  # a sum: each model's gradient is its own
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-    return params.detach()
 
 
 def fit_targets(

@@ -25,7 +25,7 @@ from pipeline.core.fit_settings import PatchFitSettings
 from train.data import DataSettings, make_loader
 from train.errors import UsageError
 from train.objective import Objective
-from train.patch_fit import fit_batch
+from train.template_fit import fit_batch
 from train.templates import Template
 
 # Fits per optimisation batch: bounds memory (the objective's tensors grow with the batch).
