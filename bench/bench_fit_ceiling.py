@@ -1,8 +1,8 @@
 """How far can a template go on each test shape at all? The per-shape ceiling of the quality table.
 
 Fits the template's parameters directly to each target (no sketch, no network): Adam on the
-control points of every shape of a split at once, with the training loss minus the collision
-term (for speed; the ceiling is about L_Ch), then reports the plain L_Ch the quality table uses
+control points of every shape of a split at once (the fit stage's fit), with the training loss
+minus the collision term (for speed; the ceiling is about L_Ch), then reports the plain L_Ch the quality table uses
 (`train evaluate`: nearest points, midpoint grid, no part groups) for the template, the fitted
 shapes, and — from an `evaluate` JSON when given — the network and the sketch-blind baseline.
 If the fitted L_Ch is not 25 % below blind, no network can meet the "−25 % vs blind" goal with
@@ -22,10 +22,11 @@ import time
 import torch
 
 from pipeline.core.atomic import dumps_json, write_bytes
+from pipeline.core.fit_settings import PatchFitSettings
 from train.data import DataSettings, make_loader
-from train.losses.total import weighted_sum
-from train.losses.weights import LossWeights, template_weights
+from train.losses.weights import LossWeights
 from train.objective import Objective
+from train.template_fit import fit_batch
 from train.templates import load_template
 
 
@@ -43,20 +44,11 @@ def _plain_chamfer(objective: Objective, params: torch.Tensor, batch: dict) -> t
 def fit_to_targets(
     objective: Objective, batch: dict, steps: int, lr: float = 0.01, collision: float = 0.0
 ) -> torch.Tensor:
-    """The template fitted to each target of ``batch`` (B, D): Adam on the parameters of all items
-    at once, the training loss with the collision term at weight ``collision`` (default off, for
-    speed: the ceiling is about L_Ch)."""
-    template = objective.template
-    weights = template_weights(template.regularizers, {"collision": collision})
-    params = template.initial_params()[None].expand(len(batch["key"]), -1).clone().requires_grad_(True)
-    opt = torch.optim.Adam([params], lr=lr)
-    gen = torch.Generator().manual_seed(0)
-    for _ in range(steps):
-        loss = weighted_sum(objective.batch_terms(params, batch, objective.sample_st(gen), weights), weights).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-    return params.detach()
+    """The template fitted to each target of ``batch`` (B, D): the fit stage's fit
+    (``train.template_fit.fit_batch``), the collision term at weight ``collision`` (default off,
+    for speed: the ceiling is about L_Ch)."""
+    settings = PatchFitSettings(steps=steps, lr=lr, collision=collision)
+    return fit_batch(objective, batch, settings, seed=0, category=objective.template.name or "")
 
 
 def fit_ceiling(

@@ -1,7 +1,7 @@
 """What the CAD kernel says of the training loss's own optimum: fits, not network outputs.
 
 Fits the category's template to the first N targets of a split with the training loss (collision
-term on, ``bench_fit_ceiling.fit_to_targets``) and checks each fit three ways: the CAD kernel
+term on, ``bench_fit_ceiling.fit_to_targets``, the fit stage's fit) and checks each fit three ways: the CAD kernel
 (``train.export.kernel_check``, the clean verdict ``predict`` prints), the crossing count
 ``evaluate`` reports (the loss's 8 x 8 truncated triangulation) and the conforming quad mesh at
 40 segments per unit (``patch_intersections``). The kernel's faults are split into patch pairs

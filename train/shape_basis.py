@@ -1,7 +1,7 @@
 """A category's shape space, read from fits: the output basis of ``fit --shape-basis N``.
 
 The template is fitted to the first N models of the training split (the fit stage's fit,
-``train.patch_fit.fit_batch``: Adam on the control points, no sketch, no network), and the
+``train.template_fit.fit_batch``: Adam on the control points, no sketch, no network), and the
 principal directions of those fits, each scaled by its standard deviation, become the directions
 the network's output layer moves the template along (``train.model.BasisReadout``).
 
@@ -35,11 +35,9 @@ CHUNK = 64
 @dataclasses.dataclass(frozen=True)
 class ShapeBasis:
     """``directions`` (K, D): the fits' principal directions, each times its standard deviation,
-    largest first; ``mean`` (D,): the fits' mean; ``explained``: the share of the fits' variance
-    the K directions hold; ``shapes``: how many fits they come from; ``cpu_s``: what fitting cost."""
+    largest first; ``explained``: the share of the fits' variance the K directions hold; ``shapes``: how many fits they come from; ``cpu_s``: what fitting cost."""
 
     directions: np.ndarray
-    mean: np.ndarray
     explained: float
     shapes: int
     cpu_s: float = 0.0
@@ -66,7 +64,7 @@ def principal_basis(params: np.ndarray, variance: float = 0.99, max_directions: 
     # a direction's sign is arbitrary in the SVD: fix it so the same fits give the same basis
     signs = np.where(vt[:k][np.arange(k), np.abs(vt[:k]).argmax(axis=1)] < 0, -1.0, 1.0)
     directions = (vt[:k] * (std * signs)[:, None]).astype(np.float32)
-    return ShapeBasis(directions, mean.astype(np.float32), float(share[k - 1]), n)
+    return ShapeBasis(directions, float(share[k - 1]), n)
 
 
 def fitted_shapes(
