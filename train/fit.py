@@ -33,7 +33,8 @@ from pipeline.core.settings_io import SettingError, flag_name, from_dict, settin
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
-from train.losses.contrast import info_nce
+from train.key_queue import KeyQueue, MomentumKeys, model_ids
+from train.losses.contrast import info_nce, info_nce_keys
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
@@ -94,6 +95,13 @@ class FitSettings:
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off)",
     )
+    momentum_queue: int = setting(
+        0,
+        "with --contrast and --ema: encode each second drawing with the weight average (no "
+        "gradient, as MoCo's momentum encoder) and keep this many earlier such codes as extra "
+        "negatives (train/key_queue.py; 0: both drawings through the training encoder, the batch's "
+        "other models as the only negatives)",
+    )
     clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
@@ -137,7 +145,7 @@ class FitSettings:
             "basis_directions",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis", "momentum_queue"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(
@@ -158,6 +166,8 @@ class FitSettings:
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
                 continue
             _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
+        if self.momentum_queue:
+            _require(self, "momentum_queue", self.ema > 0 and self.contrast > 0, "0 without --ema and --contrast")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
@@ -518,6 +528,7 @@ def train_step(
     contrast: float = 0.0,
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
+    momentum: MomentumKeys | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -536,14 +547,23 @@ def train_step(
     # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
     # on a GPU run), and the view mask stays on the host: the encoder reads it there
     pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
-    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
+    keyed = momentum is not None and pair is not None
+    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], None if keyed else pair, keyed)
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
-    if contrast > 0:
+    if keyed:
+        keys, ids = momentum.keys(pair), model_ids(batch["key"], device)
+        queue = momentum.queue
+        negatives = (queue.keys, queue.negatives_mask(ids)) if queue is not None else (None, None)
+        terms["contrast"] = info_nce_keys(out["codes"], keys, ids, *negatives)
+        loss = loss + contrast * terms["contrast"].mean()
+    elif contrast > 0:
         terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
+    if keyed and momentum.queue is not None:  # after backward: the loss's graph holds the queue
+        momentum.queue.push(keys, ids)
     terms["grad_norm"] = clip_gradient(net, clip_grad)
     finite = torch.isfinite(loss.detach()) & torch.isfinite(terms["grad_norm"])
     if guard is not None and guard.supports(optimizer):
@@ -609,6 +629,10 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     average = WeightAverage(model, settings.ema) if settings.ema > 0 else None
     if average is not None and ckpt is not None:
         average.model.load_state_dict(ckpt["model"])
+    momentum = None
+    if settings.momentum_queue and average is not None:
+        queue = KeyQueue(settings.momentum_queue, model.encoder.out_features, info.device)
+        momentum = MomentumKeys(average.model, queue)
     served = average.model if average is not None else model  # what validation sees and checkpoints hand out
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
@@ -686,6 +710,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.contrast,
                 settings.clip_grad,
                 guard,
+                momentum,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()

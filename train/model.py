@@ -107,12 +107,19 @@ class TrainingNet(nn.Module):
         self.model = model
 
     def forward(
-        self, images: torch.Tensor, view_mask: torch.Tensor | None = None, pair_images: torch.Tensor | None = None
+        self,
+        images: torch.Tensor,
+        view_mask: torch.Tensor | None = None,
+        pair_images: torch.Tensor | None = None,
+        with_codes: bool = False,
     ) -> dict[str, torch.Tensor]:
-        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)."""
+        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C);
+        ``with_codes`` returns "codes" alone (the momentum keys come from elsewhere)."""
         m = self.model
         codes = m.encode(images, view_mask)
         out = {"params": m.decode_latent(m.hidden[0](codes))}
         if pair_images is not None:
             out["codes"], out["pair_codes"] = codes, m.encode(pair_images)
+        elif with_codes:
+            out["codes"] = codes
         return out
