@@ -1,6 +1,7 @@
 """The contrastive term: InfoNCE on codes, the loader's pair drawings, and a run that uses both."""
 
 import csv
+import dataclasses
 import itertools
 import math
 import sys
@@ -138,7 +139,7 @@ def test_queue_negatives_count_unless_masked_and_the_ring_wraps():
         info_nce_keys(codes, codes, ids, queue.keys)  # a queue needs its mask
 
 
-def test_a_run_with_momentum_keys_fills_its_queue_and_needs_a_weight_average(shards, tmp_path):
+def test_a_run_with_momentum_keys_fills_its_queue_and_needs_the_contrastive_term(shards, tmp_path):
     base = dict(
         dataset=str(shards),
         category="knife",
@@ -156,35 +157,57 @@ def test_a_run_with_momentum_keys_fills_its_queue_and_needs_a_weight_average(sha
         weights=LossWeights(collision=0.0),
     )
     with pytest.raises(SettingError, match="momentum_queue"):
-        FitSettings(**base, out=str(tmp_path / "x"), momentum_queue=6)
+        FitSettings(**{**base, "contrast": 0.0}, out=str(tmp_path / "x"), momentum_queue=6)
     out = tmp_path / "moco"
-    fit(FitSettings(**base, out=str(out), ema=0.9, momentum_queue=6), progress=False)
+    fit(FitSettings(**base, out=str(out), momentum_queue=6), progress=False)
     terms = [float(r["contrast"]) for r in csv.DictReader(open(out / "log.csv"))]
     # the first step has only the batch's 2 negatives; later steps add the queued keys (up to 6)
     assert len(terms) == 4 and terms[0] < math.log(3) + 0.7 < terms[-1]
     assert load_run(out / "checkpoint.pt").settings.momentum_queue == 6
 
 
-def test_momentum_keys_use_batch_statistics_and_leave_the_average_as_it_was():
-    from train.model import SketchToPatches
+def test_momentum_keys_follow_the_encoder_slowly_in_eval_mode():
+    from train.resnet import ResNet18
 
     torch.manual_seed(0)
-    net = SketchToPatches(torch.zeros(12), encoder_width=8).eval()
-    with torch.no_grad():  # running statistics far from any batch's, so the two modes differ
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                m.running_mean.fill_(3.0)
-    before = {k: v.clone() for k, v in net.state_dict().items()}
+    live = ResNet18(1, 8)
+    keys = MomentumKeys(live, None, momentum=0.9)
     images = torch.rand(4, 1, 32, 32)
-    keys = MomentumKeys(net, None).keys(images)
-    assert not net.training and all(
-        torch.equal(before[k], v) for k, v in net.state_dict().items() if "num_batches" not in k
-    )
     with torch.no_grad():
-        eval_codes = net.encode(images)
-        net.train()
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                m.momentum = 0.0
-        train_codes = net.encode(images)
-    assert torch.allclose(keys, train_codes) and not torch.allclose(keys, eval_codes)
+        first = keys.keys(images)
+        assert torch.allclose(first, live.eval()(images))  # a copy at first, read in eval mode
+        live.train()
+        for p in live.parameters():
+            p.add_(0.5)
+    assert not any(p.requires_grad for p in keys.encoder.parameters())
+    keys.update()  # 10 % of the way to the moved weights
+    moved = dict(live.named_parameters())
+    for name, p in keys.encoder.named_parameters():
+        assert torch.allclose(p, moved[name] - 0.45, atol=1e-6)
+    assert not torch.allclose(keys.keys(images), first)
+
+
+def test_a_group_norm_run_saves_its_norm_and_loads_with_it(shards, tmp_path):
+    out = tmp_path / "gn"
+    settings = FitSettings(
+        dataset=str(shards),
+        category="knife",
+        template="sphere24",
+        out=str(out),
+        steps=2,
+        batch_size=3,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=1,
+        checkpoint_every=100,
+        encoder_width=16,
+        norm="group",
+        weights=LossWeights(collision=0.0),
+    )
+    fit(settings, progress=False)
+    run = load_run(out / "checkpoint.pt")
+    assert run.settings.norm == "group"
+    assert any(isinstance(m, torch.nn.GroupNorm) for m in run.model.modules())
+    with pytest.raises(SettingError, match="norm"):
+        FitSettings(**{**dataclasses.asdict(settings), "weights": settings.weights, "norm": "layer"})

@@ -39,6 +39,7 @@ from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
+from train.resnet import NORMS
 from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
@@ -80,6 +81,12 @@ class FitSettings:
         "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
         "ResNet-18 as in the paper; 32: about a third of its CPU time)",
     )
+    norm: str = setting(
+        "batch",
+        "the network's normalization: batch (BatchNorm, the paper's ResNet) or group (GroupNorm of "
+        "16 channels in the encoder, LayerNorm in the hidden layers: no statistics shared across a "
+        "batch, the same in training and evaluation)",
+    )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
@@ -97,8 +104,8 @@ class FitSettings:
     )
     momentum_queue: int = setting(
         0,
-        "with --contrast and --ema: encode each second drawing with the weight average (no "
-        "gradient, as MoCo's momentum encoder) and keep this many earlier such codes as extra "
+        "with --contrast: encode each second drawing with a momentum copy of the encoder (no "
+        "gradient, as MoCo's key encoder) and keep this many earlier such codes as extra "
         "negatives (train/key_queue.py; 0: both drawings through the training encoder, the batch's "
         "other models as the only negatives)",
     )
@@ -154,6 +161,7 @@ class FitSettings:
             _is_number(self.output_lr_scale) and 0 < self.output_lr_scale < math.inf,
             "a factor > 0",
         )
+        _require(self, "norm", self.norm in NORMS, f"one of {', '.join(NORMS)}")
         _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
         _require(
             self,
@@ -167,7 +175,7 @@ class FitSettings:
                 continue
             _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
         if self.momentum_queue:
-            _require(self, "momentum_queue", self.ema > 0 and self.contrast > 0, "0 without --ema and --contrast")
+            _require(self, "momentum_queue", self.contrast > 0, "0 without --contrast")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
@@ -350,7 +358,12 @@ def load_run(path: str | Path) -> TrainedRun:
     ckpt = load_checkpoint(path)
     settings = _saved_settings(path, ckpt)
     template = _saved_template(path, ckpt)
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=saved_basis(ckpt))
+    model = SketchToPatches(
+        template.initial_params(),
+        encoder_width=settings.encoder_width,
+        basis=saved_basis(ckpt),
+        norm=settings.norm,
+    )
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
@@ -616,9 +629,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     )
     basis = saved_basis(ckpt) if ckpt is not None else _new_basis(settings, template, info, out)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=basis).to(
-        info.device
-    )
+    model = SketchToPatches(
+        template.initial_params(), encoder_width=settings.encoder_width, basis=basis, norm=settings.norm
+    ).to(info.device)
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:
@@ -630,9 +643,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     if average is not None and ckpt is not None:
         average.model.load_state_dict(ckpt["model"])
     momentum = None
-    if settings.momentum_queue and average is not None:
+    if settings.momentum_queue:
         queue = KeyQueue(settings.momentum_queue, model.encoder.out_features, info.device)
-        momentum = MomentumKeys(average.model, queue)
+        momentum = MomentumKeys(model.encoder, queue)
     served = average.model if average is not None else model  # what validation sees and checkpoints hand out
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
@@ -718,6 +731,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             raise UsageError(_diverged(getattr(exc, "step", done), exc, ckpt_path, kept)) from None
         if average is not None:
             average.update(step)
+        if momentum is not None:
+            momentum.update()
         val = None
         if val_loader is not None and val_step:
             val = validation_chamfer(served, val_loader, objective, info.device)

@@ -13,6 +13,7 @@ checkpoints: a resumed run starts it empty and fills it within ``size / batch`` 
 
 from __future__ import annotations
 
+import copy
 import zlib
 
 import torch
@@ -50,29 +51,33 @@ class KeyQueue:
         self._next = (self._next + n) % len(self.ids)
 
 
+# The key encoder's own momentum, constant from the first step (MoCo's): the weight average's
+# decay warms up (0.991 at step 1,000), so its codes of 128 steps ago were already far from
+# today's and a queue of them could be told apart by age.
+KEY_MOMENTUM = 0.999
+
+
 class MomentumKeys:
-    """The key side of the contrastive term: ``encoder`` is the weight average's network and
-    ``queue`` (optional) the earlier keys.
+    """The key side of the contrastive term: a copy of the training encoder that follows it with
+    a constant momentum (``update`` after every optimizer step) and encodes the second drawings
+    in eval mode (its running statistics follow the trained encoder's too), and the queue of
+    earlier keys (optional). Keys never see the query batch's statistics, so the codes cannot
+    tell this batch's keys from the queue's by what the batch shares."""
 
-    Keys are computed with batch statistics, as the training encoder computes its queries, but
-    without moving the average's running statistics (BatchNorm momentum 0 for the pass): keys from
-    its running statistics (eval mode) made the training network's own eval-mode output drift
-    away from its training-mode output (airplane validation L_Ch 0.095 at step 100, 0.38 at 500,
-    the training network's 0.82), while batch-statistics keys kept level with the recipe."""
-
-    def __init__(self, encoder: torch.nn.Module, queue: KeyQueue | None):
-        self.encoder = encoder
+    def __init__(self, encoder: torch.nn.Module, queue: KeyQueue | None, momentum: float = KEY_MOMENTUM):
+        self.encoder = copy.deepcopy(encoder).eval().requires_grad_(False)
         self.queue = queue
-        self._norms = [m for m in encoder.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+        self.momentum = momentum
+        live = encoder.state_dict(keep_vars=True)
+        pairs = [(k, live[name].detach()) for name, k in self.encoder.state_dict().items()]
+        self._floats = [(a, b) for a, b in pairs if a.is_floating_point()]
 
     @torch.no_grad()
     def keys(self, pair_images: Tensor) -> Tensor:
-        """(B, C) codes of the second drawings."""
-        saved = [(m.momentum, m.training) for m in self._norms]
-        for m in self._norms:
-            m.momentum, m.training = 0.0, True
-        try:
-            return self.encoder.encode(pair_images)
-        finally:
-            for m, (momentum, training) in zip(self._norms, saved):
-                m.momentum, m.training = momentum, training
+        """(B, C) codes of the second drawings (B, 1, H, W)."""
+        return self.encoder(pair_images)
+
+    @torch.no_grad()
+    def update(self) -> None:
+        for key, live in self._floats:
+            key.lerp_(live, 1.0 - self.momentum)

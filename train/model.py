@@ -45,16 +45,20 @@ class SketchToPatches(nn.Module):
         hidden: tuple[int, ...] = HIDDEN,
         encoder_width: int = 64,
         basis: torch.Tensor | None = None,
+        norm: str = "batch",
     ):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        self.encoder = ResNet18(1, encoder_width)
+        self.encoder = ResNet18(1, encoder_width, norm)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
+        # norm "group": LayerNorm here, so no layer of the network shares statistics across a batch
         self.hidden = nn.ModuleList(
-            nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True))
+            nn.Sequential(
+                nn.Linear(a, b), nn.BatchNorm1d(b) if norm == "batch" else nn.LayerNorm(b), nn.ReLU(inplace=True)
+            )
             for a, b in zip(dims[:-1], dims[1:])
         )
         if basis is not None:
