@@ -41,7 +41,6 @@ TRAIN_LEVELS = {
     "train.distributed": 0,
     "train.plots": 0,
     "train.weight_average": 0,
-    "train.key_queue": 0,
     "train.sketch_input": 0,
     "train.geometry": 1,
     "train.export": 2,  # CAD files and mesh checks of patch arrays

@@ -1,9 +1,7 @@
 """The contrastive term: InfoNCE on codes, the loader's pair drawings, and a run that uses both."""
 
 import csv
-import dataclasses
 import itertools
-import math
 import sys
 from pathlib import Path
 
@@ -13,12 +11,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
-from pipeline.core.settings_io import SettingError
 from train.augmentation import Jitter
 from train.data import DataSettings, make_loader
 from train.fit import FitSettings, fit, load_run
-from train.key_queue import KeyQueue, MomentumKeys
-from train.losses.contrast import info_nce, info_nce_keys
+from train.losses.contrast import info_nce
 from train.losses.weights import LossWeights
 
 
@@ -95,119 +91,3 @@ def test_a_run_with_the_contrastive_term_logs_it_and_rebuilds(shards, tmp_path):
     # off by default: no pair drawings are loaded and the column stays empty
     fit(FitSettings(**{**base, "out": str(tmp_path / "plain")}), progress=False)
     assert {r["contrast"] for r in csv.DictReader(open(tmp_path / "plain" / "log.csv"))} == {""}
-
-
-def test_momentum_keys_term_learns_only_through_the_query_and_masks_its_own_model():
-    g = torch.Generator().manual_seed(1)
-    codes = torch.randn(4, 8, generator=g).requires_grad_(True)
-    keys = codes.detach() + 0.05 * torch.randn(4, 8, generator=g)
-    ids = torch.tensor([10, 11, 12, 13])
-    assert info_nce_keys(codes, keys, ids).mean() < 0.1
-    shuffled = keys[torch.tensor([1, 2, 3, 0])]
-    assert info_nce_keys(codes, shuffled, ids).mean() > 3.0
-    # a model drawn twice in one batch is not its own negative: rows 0 and 1 share a model, and
-    # their keys swapped still leave each anchor its own positive and no look-alike negative
-    twice = torch.tensor([10, 10, 12, 13])
-    swapped = keys[torch.tensor([1, 0, 2, 3])]
-    assert info_nce_keys(codes, swapped, twice)[:2].max() > 3.0  # the positive is still row i's key
-    assert info_nce_keys(codes, swapped, ids)[:2].min() > info_nce_keys(codes, swapped, twice)[:2].min()
-    keys.requires_grad_(True)
-    info_nce_keys(codes, keys, ids).mean().backward()
-    assert codes.grad.abs().sum() > 0 and keys.grad is None  # keys are fixed targets
-
-
-def test_queue_negatives_count_unless_masked_and_the_ring_wraps():
-    g = torch.Generator().manual_seed(2)
-    queue = KeyQueue(5, 8, torch.device("cpu"))
-    codes = torch.randn(2, 8, generator=g)
-    ids = torch.tensor([1, 2])
-    assert not queue.negatives_mask(ids).any()  # empty slots are never negatives
-    alone = info_nce_keys(codes, codes, ids, queue.keys, queue.negatives_mask(ids))
-    # keys that look like the anchors, pushed as two other models and one of the anchors' own
-    queue.push(torch.cat([codes, codes[:1]]), torch.tensor([7, 8, 1]))
-    mask = queue.negatives_mask(ids)
-    assert mask.tolist() == [[True, True, False, False, False], [True, True, True, False, False]]
-    crowded = info_nce_keys(codes, codes, ids, queue.keys, mask)
-    assert (crowded > alone + 0.5).all()  # look-alike negatives make the positive harder to pick
-    # a masked entry does not count, whatever it holds
-    queue.keys[2] = torch.nn.functional.normalize(codes[1], dim=0)
-    assert torch.allclose(info_nce_keys(codes, codes, ids, queue.keys, queue.negatives_mask(ids))[0], crowded[0])
-    queue.push(torch.randn(3, 8, generator=g), torch.tensor([20, 21, 22]))  # fills 3, 4 and wraps to 0
-    assert queue.ids.tolist() == [22, 8, 1, 20, 21]
-    assert torch.allclose(queue.keys.norm(dim=1), torch.ones(5))
-    with pytest.raises(ValueError):
-        info_nce_keys(codes, codes, ids, queue.keys)  # a queue needs its mask
-
-
-def test_a_run_with_momentum_keys_fills_its_queue_and_needs_the_contrastive_term(shards, tmp_path):
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        steps=4,
-        batch_size=3,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        log_every=1,
-        checkpoint_every=100,
-        encoder_width=16,
-        contrast=0.5,
-        weights=LossWeights(collision=0.0),
-    )
-    with pytest.raises(SettingError, match="momentum_queue"):
-        FitSettings(**{**base, "contrast": 0.0}, out=str(tmp_path / "x"), momentum_queue=6)
-    out = tmp_path / "moco"
-    fit(FitSettings(**base, out=str(out), momentum_queue=6), progress=False)
-    terms = [float(r["contrast"]) for r in csv.DictReader(open(out / "log.csv"))]
-    # the first step has only the batch's 2 negatives; later steps add the queued keys (up to 6)
-    assert len(terms) == 4 and terms[0] < math.log(3) + 0.7 < terms[-1]
-    assert load_run(out / "checkpoint.pt").settings.momentum_queue == 6
-
-
-def test_momentum_keys_follow_the_encoder_slowly_in_eval_mode():
-    from train.resnet import ResNet18
-
-    torch.manual_seed(0)
-    live = ResNet18(1, 8)
-    keys = MomentumKeys(live, None, momentum=0.9)
-    images = torch.rand(4, 1, 32, 32)
-    with torch.no_grad():
-        first = keys.keys(images)
-        assert torch.allclose(first, live.eval()(images))  # a copy at first, read in eval mode
-        live.train()
-        for p in live.parameters():
-            p.add_(0.5)
-    assert not any(p.requires_grad for p in keys.encoder.parameters())
-    keys.update()  # 10 % of the way to the moved weights
-    moved = dict(live.named_parameters())
-    for name, p in keys.encoder.named_parameters():
-        assert torch.allclose(p, moved[name] - 0.45, atol=1e-6)
-    assert not torch.allclose(keys.keys(images), first)
-
-
-def test_a_group_norm_run_saves_its_norm_and_loads_with_it(shards, tmp_path):
-    out = tmp_path / "gn"
-    settings = FitSettings(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=2,
-        batch_size=3,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        checkpoint_every=100,
-        encoder_width=16,
-        norm="group",
-        weights=LossWeights(collision=0.0),
-    )
-    fit(settings, progress=False)
-    run = load_run(out / "checkpoint.pt")
-    assert run.settings.norm == "group"
-    assert any(isinstance(m, torch.nn.GroupNorm) for m in run.model.modules())
-    with pytest.raises(SettingError, match="norm"):
-        FitSettings(**{**dataclasses.asdict(settings), "weights": settings.weights, "norm": "layer"})

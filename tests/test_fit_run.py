@@ -64,6 +64,8 @@ def test_checkpoints_with_a_removed_setting_load_when_it_was_off(shards, tmp_pat
     ck = load_checkpoint(out / "checkpoint.pt")
     ck["settings"]["encoder_lr"] = None  # a removed option, at its "same as lr" value
     ck["settings"]["contrast_queue"] = 0  # another, off
+    ck["settings"]["momentum_queue"] = 0  # and another
+    ck["settings"]["norm"] = "batch"  # and one whose "off" is a word
     torch.save(ck, out / "old.pt")
     assert load_run(out / "old.pt").step == 1
     ck["settings"]["encoder_lr"] = 1e-3  # it changed the run: still refused, naming the setting

@@ -69,27 +69,3 @@ def test_training_net_returns_the_networks_parameters_and_the_pair_codes():
     out = t(x, None, pair)
     assert torch.equal(out["params"], m(x))
     assert torch.equal(out["codes"], m.encode(x)) and torch.equal(out["pair_codes"], m.encode(pair))
-
-
-def test_group_norm_network_reads_each_image_alone_in_training_and_evaluation():
-    torch.manual_seed(0)
-    net = ResNet18(1, width=32, norm="group").train()
-    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in net.modules())
-    x = torch.rand(4, 1, 32, 32)
-    codes = net(x)
-    # one image's code does not depend on its batch-mates, nor on the mode
-    assert torch.allclose(net(x[:1]), codes[:1], atol=1e-5)
-    assert torch.allclose(net.eval()(x), codes, atol=1e-6)
-    bn = ResNet18(1, width=32).train()
-    assert not torch.allclose(bn(x[:2])[:1], bn(x)[:1], atol=1e-4)  # BatchNorm's do
-    assert sum(p.numel() for p in net.parameters()) == sum(p.numel() for p in bn.parameters())
-    with pytest.raises(ValueError, match="encoder norm"):
-        ResNet18(1, norm="layer")
-    # the whole network: its hidden layers share nothing across the batch either
-    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=16, norm="group").train()
-    with torch.no_grad():
-        m.out.weight.normal_()
-    views = torch.rand(4, 1, 1, 32, 32)
-    out = m(views)
-    assert torch.allclose(m(views[:1]), out[:1], atol=1e-5) and torch.allclose(m.eval()(views), out, atol=1e-5)
-    assert not any(isinstance(x, (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d)) for x in m.modules())

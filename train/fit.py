@@ -33,13 +33,11 @@ from pipeline.core.settings_io import SettingError, flag_name, from_dict, settin
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
-from train.key_queue import KeyQueue, MomentumKeys, model_ids
-from train.losses.contrast import info_nce, info_nce_keys
+from train.losses.contrast import info_nce
 from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
-from train.resnet import NORMS
 from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
@@ -81,12 +79,6 @@ class FitSettings:
         "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
         "ResNet-18 as in the paper; 32: about a third of its CPU time)",
     )
-    norm: str = setting(
-        "batch",
-        "the network's normalization: batch (BatchNorm, the paper's ResNet) or group (GroupNorm of "
-        "16 channels in the encoder, LayerNorm in the hidden layers: no statistics shared across a "
-        "batch, the same in training and evaluation)",
-    )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
@@ -101,13 +93,6 @@ class FitSettings:
         0.0,
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off)",
-    )
-    momentum_queue: int = setting(
-        0,
-        "with --contrast: encode each second drawing with a momentum copy of the encoder (no "
-        "gradient, as MoCo's key encoder) and keep this many earlier such codes as extra "
-        "negatives (train/key_queue.py; 0: both drawings through the training encoder, the batch's "
-        "other models as the only negatives)",
     )
     clip_grad: float = setting(
         0.0,
@@ -152,7 +137,7 @@ class FitSettings:
             "basis_directions",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
-        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis", "momentum_queue"):
+        for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")
         _require(
@@ -161,7 +146,6 @@ class FitSettings:
             _is_number(self.output_lr_scale) and 0 < self.output_lr_scale < math.inf,
             "a factor > 0",
         )
-        _require(self, "norm", self.norm in NORMS, f"one of {', '.join(NORMS)}")
         _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
         _require(
             self,
@@ -174,8 +158,6 @@ class FitSettings:
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
                 continue
             _require(self, name, _is_number(value) and 0 <= value < math.inf, "0 (off) or a positive number")
-        if self.momentum_queue:
-            _require(self, "momentum_queue", self.contrast > 0, "0 without --contrast")
 
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
@@ -327,8 +309,9 @@ class TrainedRun:
 # Settings removed since, with the value that meant "off": a checkpoint saved with that value
 # loads as if it never had the setting; any other value still fails, naming it.
 # encoder_lr: a separate encoder learning rate; contrast_queue: earlier drawings' codes as extra
-# negatives of the contrastive term (both tried and removed, docs/experiments.md)
-_REMOVED_SETTINGS = {"encoder_lr": None, "contrast_queue": 0}
+# negatives of the contrastive term; momentum_queue: the same from a momentum encoder; norm: the
+# network's normalization layers (all tried and removed, docs/experiments.md)
+_REMOVED_SETTINGS = {"encoder_lr": None, "contrast_queue": 0, "momentum_queue": 0, "norm": "batch"}
 
 
 def checkpoint_settings(ckpt: dict) -> FitSettings:
@@ -358,12 +341,7 @@ def load_run(path: str | Path) -> TrainedRun:
     ckpt = load_checkpoint(path)
     settings = _saved_settings(path, ckpt)
     template = _saved_template(path, ckpt)
-    model = SketchToPatches(
-        template.initial_params(),
-        encoder_width=settings.encoder_width,
-        basis=saved_basis(ckpt),
-        norm=settings.norm,
-    )
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=saved_basis(ckpt))
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
@@ -541,7 +519,6 @@ def train_step(
     contrast: float = 0.0,
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
-    momentum: MomentumKeys | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -560,23 +537,14 @@ def train_step(
     # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
     # on a GPU run), and the view mask stays on the host: the encoder reads it there
     pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
-    keyed = momentum is not None and pair is not None
-    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], None if keyed else pair, keyed)
+    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
-    if keyed:
-        keys, ids = momentum.keys(pair), model_ids(batch["key"], device)
-        queue = momentum.queue
-        negatives = (queue.keys, queue.negatives_mask(ids)) if queue is not None else (None, None)
-        terms["contrast"] = info_nce_keys(out["codes"], keys, ids, *negatives)
-        loss = loss + contrast * terms["contrast"].mean()
-    elif contrast > 0:
+    if contrast > 0:
         terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
         loss = loss + contrast * terms["contrast"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
-    if keyed and momentum.queue is not None:  # after backward: the loss's graph holds the queue
-        momentum.queue.push(keys, ids)
     terms["grad_norm"] = clip_gradient(net, clip_grad)
     finite = torch.isfinite(loss.detach()) & torch.isfinite(terms["grad_norm"])
     if guard is not None and guard.supports(optimizer):
@@ -629,9 +597,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     )
     basis = saved_basis(ckpt) if ckpt is not None else _new_basis(settings, template, info, out)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(
-        template.initial_params(), encoder_width=settings.encoder_width, basis=basis, norm=settings.norm
-    ).to(info.device)
+    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=basis).to(
+        info.device
+    )
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:
@@ -642,10 +610,6 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     average = WeightAverage(model, settings.ema) if settings.ema > 0 else None
     if average is not None and ckpt is not None:
         average.model.load_state_dict(ckpt["model"])
-    momentum = None
-    if settings.momentum_queue:
-        queue = KeyQueue(settings.momentum_queue, model.encoder.out_features, info.device)
-        momentum = MomentumKeys(model.encoder, queue)
     served = average.model if average is not None else model  # what validation sees and checkpoints hand out
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
@@ -723,7 +687,6 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.contrast,
                 settings.clip_grad,
                 guard,
-                momentum,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()
@@ -731,8 +694,6 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
             raise UsageError(_diverged(getattr(exc, "step", done), exc, ckpt_path, kept)) from None
         if average is not None:
             average.update(step)
-        if momentum is not None:
-            momentum.update()
         val = None
         if val_loader is not None and val_step:
             val = validation_chamfer(served, val_loader, objective, info.device)

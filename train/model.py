@@ -45,20 +45,16 @@ class SketchToPatches(nn.Module):
         hidden: tuple[int, ...] = HIDDEN,
         encoder_width: int = 64,
         basis: torch.Tensor | None = None,
-        norm: str = "batch",
     ):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        self.encoder = ResNet18(1, encoder_width, norm)
+        self.encoder = ResNet18(1, encoder_width)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
-        # norm "group": LayerNorm here, so no layer of the network shares statistics across a batch
         self.hidden = nn.ModuleList(
-            nn.Sequential(
-                nn.Linear(a, b), nn.BatchNorm1d(b) if norm == "batch" else nn.LayerNorm(b), nn.ReLU(inplace=True)
-            )
+            nn.Sequential(nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU(inplace=True))
             for a, b in zip(dims[:-1], dims[1:])
         )
         if basis is not None:
@@ -111,19 +107,12 @@ class TrainingNet(nn.Module):
         self.model = model
 
     def forward(
-        self,
-        images: torch.Tensor,
-        view_mask: torch.Tensor | None = None,
-        pair_images: torch.Tensor | None = None,
-        with_codes: bool = False,
+        self, images: torch.Tensor, view_mask: torch.Tensor | None = None, pair_images: torch.Tensor | None = None
     ) -> dict[str, torch.Tensor]:
-        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C);
-        ``with_codes`` returns "codes" alone (the momentum keys come from elsewhere)."""
+        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)."""
         m = self.model
         codes = m.encode(images, view_mask)
         out = {"params": m.decode_latent(m.hidden[0](codes))}
         if pair_images is not None:
             out["codes"], out["pair_codes"] = codes, m.encode(pair_images)
-        elif with_codes:
-            out["codes"] = codes
         return out

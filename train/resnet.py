@@ -8,32 +8,19 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-NORMS = ("batch", "group")
-GROUP_CHANNELS = 16  # channels per group of GroupNorm
-
-
-def norm_layer(kind: str, channels: int) -> nn.Module:
-    """BatchNorm (ResNet's own) or GroupNorm of ``GROUP_CHANNELS`` channels a group: the same in
-    training and evaluation, and no statistics shared between the images of a batch."""
-    if kind == "batch":
-        return nn.BatchNorm2d(channels)
-    if kind == "group":
-        return nn.GroupNorm(max(1, channels // GROUP_CHANNELS), channels)
-    raise ValueError(f"encoder norm must be one of {', '.join(NORMS)}, got {kind!r}")
-
 
 class BasicBlock(nn.Module):
     """Two 3x3 convolutions with a residual shortcut (1x1 projection when the shape changes)."""
 
-    def __init__(self, in_ch: int, out_ch: int, stride: int = 1, norm: str = "batch"):
+    def __init__(self, in_ch: int, out_ch: int, stride: int = 1):
         super().__init__()
         self.conv1 = nn.Conv2d(in_ch, out_ch, 3, stride, 1, bias=False)
-        self.bn1 = norm_layer(norm, out_ch)
+        self.bn1 = nn.BatchNorm2d(out_ch)
         self.conv2 = nn.Conv2d(out_ch, out_ch, 3, 1, 1, bias=False)
-        self.bn2 = norm_layer(norm, out_ch)
+        self.bn2 = nn.BatchNorm2d(out_ch)
         self.shortcut: nn.Module = nn.Identity()
         if stride != 1 or in_ch != out_ch:
-            self.shortcut = nn.Sequential(nn.Conv2d(in_ch, out_ch, 1, stride, bias=False), norm_layer(norm, out_ch))
+            self.shortcut = nn.Sequential(nn.Conv2d(in_ch, out_ch, 1, stride, bias=False), nn.BatchNorm2d(out_ch))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = torch.relu(self.bn1(self.conv1(x)))
@@ -45,24 +32,23 @@ class ResNet18(nn.Module):
     """ResNet-18: stem, four stages of two BasicBlocks (64, 128, 256, 512 channels), global pool.
 
     ``width`` scales every stage (``width`` × 1, 2, 4, 8 channels; 64 is ResNet-18 itself): the
-    cost of a convolution grows with the square of its channels, so 32 costs about a quarter.
-    ``norm``: "batch" (ResNet's) or "group" (:func:`norm_layer`)."""
+    cost of a convolution grows with the square of its channels, so 32 costs about a quarter."""
 
-    def __init__(self, in_channels: int = 1, width: int = 64, norm: str = "batch"):
+    def __init__(self, in_channels: int = 1, width: int = 64):
         super().__init__()
         if width < 1:
             raise ValueError(f"encoder width must be a positive number of channels, got {width}")
         self.out_features = 8 * width
         self.stem = nn.Sequential(
             nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
-            norm_layer(norm, width),
+            nn.BatchNorm2d(width),
             nn.ReLU(inplace=True),
             nn.MaxPool2d(3, 2, 1),
         )
         layers = []
         in_ch = width
         for out_ch, stride in ((width, 1), (2 * width, 2), (4 * width, 2), (8 * width, 2)):
-            layers += [BasicBlock(in_ch, out_ch, stride, norm), BasicBlock(out_ch, out_ch, 1, norm)]
+            layers += [BasicBlock(in_ch, out_ch, stride), BasicBlock(out_ch, out_ch, 1)]
             in_ch = out_ch
         self.blocks = nn.Sequential(*layers)
         for m in self.modules():
