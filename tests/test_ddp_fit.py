@@ -125,3 +125,27 @@ def test_every_rank_stops_at_the_same_diverging_step(tmp_path):
     errors = [json.loads((report / f"rank{r}.json").read_text())["error"] for r in range(2)]
     assert errors[0] == errors[1] and "step 2: training diverged" in errors[0]
     assert f"{out / 'checkpoint.pt'} keeps step 1" in errors[0]
+
+
+@pytest.mark.slow
+def test_only_rank0_fits_the_shape_basis_and_every_rank_trains_with_it(tmp_path):
+    ds = write_fixture_shards(tmp_path / "ds", n_points=800, size=32)
+    out, report = tmp_path / "run", tmp_path / "report"
+    report.mkdir()
+    _spawn_within(300, str(ds), str(out), str(report), dict(shape_basis=4, basis_directions=2, encoder_width=8))
+    r0, r1 = (json.loads((report / f"rank{r}.json").read_text()) for r in range(2))
+    assert "error" not in r0 and r0["param_digest"] == r1["param_digest"]
+    summary = json.loads((out / "shape_basis.json").read_text())
+    assert summary["shapes"] == 4 and 1 <= summary["directions"] <= 2
+
+
+def test_from_main_without_a_process_group_is_the_tensor_itself():
+    import torch
+
+    from train.distributed import DistInfo, from_main
+
+    alone = DistInfo(0, 1, 0, torch.device("cpu"))
+    t = torch.rand(3, 5)
+    assert from_main(t, alone) is t
+    with pytest.raises(ValueError):
+        from_main(None, alone)

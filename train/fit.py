@@ -31,7 +31,7 @@ from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import SettingError, flag_name, from_dict, setting
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
-from train.distributed import DistInfo, mean_over_ranks, setup, teardown
+from train.distributed import DistInfo, from_main, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
 from train.losses.contrast import info_nce
 from train.losses.total import TERMS, weighted_sum
@@ -269,9 +269,11 @@ def saved_basis(ckpt: dict) -> torch.Tensor | None:
 
 def _new_basis(settings: FitSettings, template: Template, info: DistInfo, out: Path) -> torch.Tensor | None:
     """A fresh run's shape basis (``--shape-basis N``), its summary written to ``out/shape_basis.json``.
-    Every rank fits the same models alike; DDP starts all ranks from rank 0's buffers anyway."""
+    Under DDP only rank 0 fits (~0.8 CPU s a model) and the others receive its basis."""
     if not settings.shape_basis:
         return None
+    if not info.is_main:
+        return from_main(None, info)
     from train.shape_basis import shape_basis
 
     basis = shape_basis(
@@ -282,16 +284,15 @@ def _new_basis(settings: FitSettings, template: Template, info: DistInfo, out: P
         settings.seed,
         max_directions=settings.basis_directions,
     )
-    if info.is_main:
-        summary = {
-            "shapes": basis.shapes,
-            "directions": int(basis.directions.shape[0]),
-            "explained": round(basis.explained, 4),
-            "cpu_s": basis.cpu_s,
-        }
-        out.mkdir(parents=True, exist_ok=True)
-        write_bytes(out / "shape_basis.json", dumps_json(summary).encode())
-    return torch.from_numpy(basis.directions)
+    summary = {
+        "shapes": basis.shapes,
+        "directions": int(basis.directions.shape[0]),
+        "explained": round(basis.explained, 4),
+        "cpu_s": basis.cpu_s,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    write_bytes(out / "shape_basis.json", dumps_json(summary).encode())
+    return from_main(torch.from_numpy(basis.directions), info)
 
 
 @dataclasses.dataclass(frozen=True)
