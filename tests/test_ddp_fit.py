@@ -139,13 +139,14 @@ def test_only_rank0_fits_the_shape_basis_and_every_rank_trains_with_it(tmp_path)
     assert summary["shapes"] == 4 and 1 <= summary["directions"] <= 2
 
 
-def test_from_main_without_a_process_group_is_the_tensor_itself():
+def test_from_main_without_a_process_group_is_the_tensor_as_float32():
     import torch
 
     from train.distributed import DistInfo, from_main
 
     alone = DistInfo(0, 1, 0, torch.device("cpu"))
     t = torch.rand(3, 5)
-    assert from_main(t, alone) is t
+    assert torch.equal(from_main(t, alone), t)
+    assert from_main(t.double(), alone).dtype == torch.float32  # what the ranks of a group get
     with pytest.raises(ValueError):
         from_main(None, alone)

@@ -85,22 +85,20 @@ def mean_over_ranks(value: torch.Tensor, info: DistInfo) -> torch.Tensor:
 
 
 def from_main(value: torch.Tensor | None, info: DistInfo) -> torch.Tensor:
-    """Rank 0's float tensor on every rank (CPU, float32); other ranks pass None. Its shape
-    travels first, so the others need not know it (a shape basis keeps as many directions as
-    the fits need). Without a process group: ``value`` itself."""
+    """Rank 0's tensor (float32, on the CPU) on every rank; the other ranks pass None. Its shape
+    travels first (at most 8 dimensions), so they need not know it: a shape basis keeps as many
+    directions as rank 0's fits need."""
+    if info.is_main and value is None:
+        raise ValueError("from_main needs the tensor on rank 0")
     if not info.enabled:
-        if value is None:
-            raise ValueError("from_main needs the tensor on rank 0")
-        return value
+        return value.to("cpu", torch.float32)
+    shape = torch.zeros(9, dtype=torch.int64)
     if info.is_main:
-        if value is None:
-            raise ValueError("from_main needs the tensor on rank 0")
-        shape = torch.tensor([value.dim(), *value.shape, *[0] * (8 - value.dim())], dtype=torch.int64)
-    else:
-        shape = torch.zeros(9, dtype=torch.int64)
+        shape[0] = value.dim()
+        shape[1 : 1 + value.dim()] = torch.tensor(value.shape)
     shape = shape.to(info.device)
     dist.broadcast(shape, 0)
-    dims = [int(d) for d in shape[1 : 1 + int(shape[0])]]
+    dims = shape[1 : 1 + int(shape[0])].tolist()
     data = value.to(info.device, torch.float32) if info.is_main else torch.empty(dims, device=info.device)
     dist.broadcast(data, 0)
     return data.cpu()

@@ -35,7 +35,8 @@ CHUNK = 64
 @dataclasses.dataclass(frozen=True)
 class ShapeBasis:
     """``directions`` (K, D): the fits' principal directions, each times its standard deviation,
-    largest first; ``explained``: the share of the fits' variance the K directions hold; ``shapes``: how many fits they come from; ``cpu_s``: what fitting cost."""
+    largest first; ``explained``: the share of the fits' variance the K directions hold;
+    ``shapes``: how many fits they come from; ``cpu_s``: what fitting cost."""
 
     directions: np.ndarray
     explained: float
