@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from augment import strokes as A
-from augment.fitting import polyline_length
+from augment.fitting import cumulative_length, normals, polyline_length
 from augment.settings import AugmentSettings, VectorizeSettings
 from pipeline.core.settings_io import from_dict
 from pipeline.core.stage_keys import settings_hash
@@ -38,7 +38,8 @@ def test_split_raises_count_and_respects_gaps_and_min_piece():
     assert n_cuts * 1.0 - 1e-6 <= removed <= n_cuts * 4.0 + 1e-6
     # Every piece lies on its original line (cut, not moved).
     assert all(np.ptp(s[:, 1]) < 1e-9 for s in out)
-    assert A.split(src, rng(), prob=0.0, max_points=3, gap=(1, 4), min_piece=6) == src
+    same = A.split(src, rng(), prob=0.0, max_points=3, gap=(1, 4), min_piece=6)
+    assert len(same) == len(src) and all(np.array_equal(a, b) for a, b in zip(same, src))
 
 
 def test_truncate_shortens_within_bounds():
@@ -109,6 +110,28 @@ def test_drop_keeps_most_of_the_drawing():
     kept = A.drop(src, rng(), 8.0, 0.0, 1.0, keep_fraction=0.6)
     assert len(kept) == 3 and sum(polyline_length(s) for s in kept) == pytest.approx(75.0)
     assert A.drop(src, rng(), 8.0, 0.0, 1.0, keep_fraction=0.0) == []
+
+
+def test_jitter_and_wobble_are_the_numpy_formulas():
+    # the compiled steps against the per-stroke numpy they replace (to rounding: the 2 x 2 product
+    # is a fused multiply-add in OpenBLAS, as in the kernel, but that is the machine's choice)
+    src = [s + np.sin(s[:, :1] / 7.0) for s in lines(6, 60.0)] + [np.array([[3.0, 4.0]])]
+    r = rng(5)
+    want = []
+    for s in src:
+        a, k = np.radians(r.uniform(-2.0, 2.0)), r.uniform(0.9, 1.1)
+        c = s.mean(axis=0)
+        want.append((s - c) @ (k * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])).T + c)
+    got = A.jitter(src, rng(5), 2.0, 0.1)
+    assert all(np.allclose(g, w, rtol=0, atol=1e-9) for g, w in zip(got, want))
+    r = rng(6)
+    want = [
+        s if len(s) < 2 else s + normals(s) * (0.8 * A.smooth_noise(r, cumulative_length(s), 30.0))[:, None]
+        for s in src
+    ]
+    got = A.wobble(src, rng(6), 0.8, 30.0)
+    assert all(np.allclose(g, w, rtol=0, atol=1e-9) for g, w in zip(got, want))
+    assert not np.allclose(got[0], src[0])
 
 
 def test_chain_is_deterministic_and_seed_dependent():

@@ -79,10 +79,23 @@ def test_scores_at_several_tolerances_are_the_single_ones() -> None:
     assert both[0]["recall"] > both[1]["recall"]
 
 
-def test_cut_with_a_known_arc_length_is_the_same_cut() -> None:
+def test_compiled_cut_is_numpys_mask_and_interp() -> None:
     from augment.fitting import cumulative_length
 
-    pts = np.cumsum(np.random.default_rng(4).normal(size=(40, 2)), axis=0)
-    arc = cumulative_length(pts)
-    for s0, s1 in [(0.0, 3.0), (2.5, 17.25), (-1.0, 1e9)]:
-        assert np.array_equal(cut(pts, s0, s1, arc), cut(pts, s0, s1))
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 5, 40):
+        pts = np.cumsum(rng.normal(size=(n, 2)), axis=0)
+        if n > 3:
+            pts[2] = pts[1]  # a repeated point: equal arc lengths, np.interp's tie rule
+        s = cumulative_length(pts)
+        spans = [(0.0, 3.0), (2.5, 17.25), (-1.0, 1e9), (float(s[-1]) / 3, float(s[-1]) / 2)]
+        for s0, s1 in spans + ([(s[1], s[-2]), (s[2], s[-1])] if n > 3 else []):
+            a, b = max(0.0, s0), min(float(s[-1]), s1)
+            want = np.concatenate(
+                [
+                    [[np.interp(a, s, pts[:, 0]), np.interp(a, s, pts[:, 1])]],
+                    pts[(s > a) & (s < b)],
+                    [[np.interp(b, s, pts[:, 0]), np.interp(b, s, pts[:, 1])]],
+                ]
+            )
+            assert np.array_equal(cut(pts, s0, s1), want)

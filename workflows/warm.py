@@ -14,8 +14,8 @@ import gc
 
 
 def warm_stage_code() -> None:
-    """Import every stage and run the vectorizer and the pencil once on a tiny drawing (compiles
-    the skeleton paths' and the pencil's numba functions in this process); then move everything
+    """Import every stage and run the vectorizer, the stroke augmentations and the pencil once on
+    a tiny drawing (compiles their numba functions in this process); then move everything
     loaded so far out of the garbage collector's sight."""
     import cv2
     import numpy as np
@@ -32,6 +32,11 @@ def warm_stage_code() -> None:
     from augment.pencil import draw_pencil
 
     draw_pencil([np.array([[4.0, 4.0], [20.0, 12.0]]), np.array([[8.0, 30.0]])], 32, 1.0, np.random.default_rng(0))
+    # the stroke augmentations' compiled chain (augment.strokes)
+    from augment.settings import AugmentSettings
+    from augment.strokes import augment_strokes
+
+    augment_strokes([np.array([[4.0, 4.0], [20.0, 12.0], [30.0, 4.0]])], np.random.default_rng(0), AugmentSettings())
     # and the stroke files' compiled number writer (pipeline.core.points_text)
     from pipeline.core.points_text import points_json
 
