@@ -18,7 +18,7 @@ import math
 import cv2
 import numba
 import numpy as np
-from skimage.morphology import remove_small_holes, skeletonize
+from skimage.morphology import skeletonize
 
 from augment.fitting import cumulative_length, polyline_length, simplify, smooth
 from augment.settings import VectorizeSettings
@@ -66,6 +66,16 @@ def ink_mask(gray: np.ndarray, settings: VectorizeSettings) -> np.ndarray:
     return mask
 
 
+def fill_small_holes(mask: np.ndarray, max_size: int) -> np.ndarray:
+    """``mask`` with every 4-connected region of paper of at most ``max_size`` px made ink:
+    ``skimage.morphology.remove_small_holes(mask, max_size=max_size)``, from one cv2 labelling
+    (half its time)."""
+    _, labels = cv2.connectedComponents((~mask).view(np.uint8), connectivity=4)
+    small = np.bincount(labels.ravel()) <= max_size
+    small[0] = False  # label 0 is the ink itself
+    return mask | small[labels]
+
+
 @dataclasses.dataclass
 class _Branch:
     points: np.ndarray  # (n, 2) uv, ordered from start to end
@@ -81,7 +91,7 @@ def vectorize(image: np.ndarray, settings: VectorizeSettings = VectorizeSettings
     if not mask.any():
         return []
     if settings.hole_area > 0:  # doubled lines leave pin holes that thin into tiny loops
-        mask = remove_small_holes(mask, max_size=settings.hole_area)
+        mask = fill_small_holes(mask, settings.hole_area)
     skel = skeletonize(mask)
     if skel.sum() < 2:
         return []

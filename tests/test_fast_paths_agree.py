@@ -99,3 +99,20 @@ def test_compiled_cut_is_numpys_mask_and_interp() -> None:
                 ]
             )
             assert np.array_equal(cut(pts, s0, s1), want)
+
+
+def test_small_holes_filled_as_skimage_fills_them() -> None:
+    from skimage.morphology import remove_small_holes
+
+    from augment.vectorize import fill_small_holes
+
+    rng = np.random.default_rng(6)
+    for p in (0.3, 0.5, 0.7, 0.9):
+        for _ in range(10):
+            mask = rng.random((48, 40)) < p
+            for size in (0, 1, 6, 30):
+                assert np.array_equal(fill_small_holes(mask, size), remove_small_holes(mask, max_size=size))
+    ring = np.zeros((9, 9), bool)
+    ring[2:7, 2:7] = True
+    ring[4, 4] = False  # a one-pixel hole in a square of ink is filled; the paper around it is not
+    assert fill_small_holes(ring, 6)[4, 4] and not fill_small_holes(ring, 6)[0, 0]

@@ -20,6 +20,10 @@ def warm_stage_code() -> None:
     import cv2
     import numpy as np
 
+    # Luigi's workers are the parallelism; OpenCV's own thread pool (on by default, unlike the
+    # OpenMP pools OMP_NUM_THREADS holds to one) only adds CPU: labelling a 256² view took 2.4×
+    # the CPU with two threads. Forked task children inherit the setting.
+    cv2.setNumThreads(1)
     import pipeline.prepare.batch  # noqa: F401
     import render.batch  # noqa: F401
     from augment.vectorize import vectorize
