@@ -54,3 +54,28 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path):
     assert os.listdir(tmp_path) == []
     write_json(target, {"b": 1, "a": [1, 2]})
     assert read_json(target) == {"a": [1, 2], "b": 1}
+
+
+def test_write_bytes_replaces_whole_files_with_the_usual_mode(tmp_path: Path, monkeypatch):
+    from pipeline.core import atomic
+
+    target = tmp_path / "new" / "deeper" / "view_00.png"  # folders made on the way
+    atomic.write_bytes(target, b"first")
+    atomic.write_bytes(target, b"second, longer")
+    assert target.read_bytes() == b"second, longer"
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask
+    # a leftover temp file of an earlier process with this pid and number is skipped, not reused
+    number = next(atomic._tmp_numbers) + 1
+    stale = target.parent / f".{target.name}.{os.getpid()}-{number}.tmp.png"
+    stale.write_bytes(b"stale")
+    atomic.write_bytes(target, b"third")
+    assert target.read_bytes() == b"third" and stale.read_bytes() == b"stale"
+    assert sorted(p.name for p in target.parent.iterdir()) == sorted([stale.name, target.name])
+    # a failed write leaves the old file and no temp file
+    monkeypatch.setattr(atomic.os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(28, "No space left")))
+    with pytest.raises(OSError, match="disk full"):
+        atomic.write_bytes(target, b"fourth")
+    assert target.read_bytes() == b"third"
+    assert sorted(p.name for p in target.parent.iterdir()) == sorted([stale.name, target.name])

@@ -12,6 +12,7 @@ import contextlib
 import errno
 import fnmatch
 import io
+import itertools
 import json
 import os
 import signal
@@ -114,12 +115,47 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         raise
 
 
+_tmp_numbers = itertools.count()
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+    """``data`` at ``path`` whole or not at all, on disk before the rename (fsync): what
+    :func:`atomic_path` gives, in five system calls instead of ten (a model writes ~45 files;
+    mkstemp, a chmod and a second open were half their cost). The temp name holds the process
+    id and a counter, so writers never share one; ``O_EXCL`` still refuses a leftover."""
+    path = Path(path)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+    suffix = "".join(path.suffixes)
+    try:
+        while True:
+            tmp = path.parent / f".{path.name}.{os.getpid()}-{next(_tmp_numbers)}.tmp{suffix}"
+            try:
+                fd = os.open(tmp, flags, 0o666)  # the umask applies, as to any new file
+                break
+            except FileExistsError:
+                continue
+            except FileNotFoundError:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                fd = os.open(tmp, flags, 0o666)
+                break
+    except OSError as exc:
+        raise storage_error(path, exc) from exc
+    try:
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        _fault_point(path)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        if isinstance(exc, OSError):
+            raise storage_error(path, exc) from exc
+        raise
 
 
 def dumps_json(obj: Any) -> str:
