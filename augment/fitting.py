@@ -6,6 +6,7 @@ Every function takes and returns float (K, 2) arrays of (u, v) points and never 
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
@@ -99,35 +100,123 @@ def resample(points: np.ndarray, spacing: float) -> np.ndarray:
     return np.stack([np.interp(t, s, points[:, 0]), np.interp(t, s, points[:, 1])], axis=1)
 
 
-def catmull_rom(points: np.ndarray, spacing: float, alpha: float = 0.5) -> np.ndarray:
+@numba.njit(cache=True)
+def _resampled(p, n0, spacing, out, o):
+    """``resample`` of the deduplicated p[:n0] (< 3 points) written at out[o:]; returns the new o."""
+    if n0 < 2:
+        for i in range(n0):
+            out[o + i] = p[i]
+        return o + n0
+    s = np.zeros(n0)
+    for i in range(1, n0):
+        s[i] = s[i - 1] + np.hypot(p[i, 0] - p[i - 1, 0], p[i, 1] - p[i - 1, 1])
+    n = max(2, int(np.ceil(s[n0 - 1] / max(spacing, 1e-6))) + 1)
+    step = s[n0 - 1] / (n - 1)
+    for j in range(n):  # np.linspace(0, s[-1], n), then np.interp per axis
+        t = j / (n - 1) * s[n0 - 1] if step == 0 else j * step + 0.0
+        if j == n - 1:
+            t = s[n0 - 1]
+        for axis in range(2):
+            out[o + j, axis] = _interp1(t, s, p[:n0, axis])
+    return o + n
+
+
+@numba.njit(cache=True)
+def _interp1(x, xp, fp):
+    """``np.interp(x, xp, fp)`` for one x and a non-decreasing xp (numpy's formula and cases)."""
+    n = len(xp)
+    if x > xp[n - 1]:
+        return fp[n - 1]
+    if x < xp[0]:
+        return fp[0]
+    lo, hi = 0, n  # the last j with xp[j] <= x
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if x >= xp[mid]:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo - 1
+    if j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    r = slope * (x - xp[j]) + fp[j]
+    if np.isnan(r):
+        r = slope * (x - xp[j + 1]) + fp[j + 1]
+        if np.isnan(r) and fp[j] == fp[j + 1]:
+            r = fp[j]
+    return r
+
+
+@numba.njit(cache=True)
+def _catmull_rom_all(points, starts, spacing):
+    """``catmull_rom`` of every stroke of flat (points, starts), numpy's arithmetic step by step
+    (``** 0.5`` is numpy's square root, sums run in order)."""
+    n_strokes = len(starts) - 1
+    spacing = max(spacing, 1e-6)
+    size = 0
+    for k in range(n_strokes):  # an upper bound on the output
+        for i in range(starts[k] + 1, starts[k + 1]):
+            d = np.hypot(points[i, 0] - points[i - 1, 0], points[i, 1] - points[i - 1, 1])
+            size += max(1, int(np.ceil(d / spacing))) + 1
+        size += 4
+    out = np.empty((size, 2))
+    out_starts = np.zeros(n_strokes + 1, np.int64)
+    o = 0
+    for k in range(n_strokes):
+        i0, i1 = starts[k], starts[k + 1]
+        p = np.empty((i1 - i0 + 2, 2))  # rows 1..m: the deduplicated stroke, 0 and m + 1: phantoms
+        m = 0
+        for i in range(i0, i1):
+            if m == 0 or max(abs(points[i, 0] - p[m, 0]), abs(points[i, 1] - p[m, 1])) > 1e-6:
+                m += 1
+                p[m] = points[i]
+        if m < 3:
+            o = _resampled(p[1:], m, spacing, out, o)
+            out_starts[k + 1] = o
+            continue
+        p[0, 0], p[0, 1] = 2 * p[1, 0] - p[2, 0], 2 * p[1, 1] - p[2, 1]
+        p[m + 1, 0], p[m + 1, 1] = 2 * p[m, 0] - p[m - 1, 0], 2 * p[m, 1] - p[m - 1, 1]
+        knots = np.zeros(m + 2)
+        for i in range(m + 1):
+            dx, dy = p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1]
+            knots[i + 1] = knots[i] + max(np.sqrt(np.sqrt(dx * dx + dy * dy)), 1e-6)
+        for i in range(1, m):  # the segment from p[i] to p[i + 1]
+            dx, dy = p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1]
+            count = max(1, int(np.ceil(np.sqrt(dx * dx + dy * dy) / spacing)))
+            t0, t1, t2, t3 = knots[i - 1], knots[i], knots[i + 1], knots[i + 2]
+            for j in range(count):
+                t = t1 + j / count * (t2 - t1)
+                for a in range(2):
+                    p0, p1, p2, p3 = p[i - 1, a], p[i, a], p[i + 1, a], p[i + 2, a]
+                    a1 = (t1 - t) / (t1 - t0) * p0 + (t - t0) / (t1 - t0) * p1
+                    a2 = (t2 - t) / (t2 - t1) * p1 + (t - t1) / (t2 - t1) * p2
+                    a3 = (t3 - t) / (t3 - t2) * p2 + (t - t2) / (t3 - t2) * p3
+                    b1 = (t2 - t) / (t2 - t0) * a1 + (t - t0) / (t2 - t0) * a2
+                    b2 = (t3 - t) / (t3 - t1) * a2 + (t - t1) / (t3 - t1) * a3
+                    out[o, a] = (t2 - t) / (t2 - t1) * b1 + (t - t1) / (t2 - t1) * b2
+                o += 1
+        out[o] = p[m]
+        o += 1
+        out_starts[k + 1] = o
+    return out[:o], out_starts
+
+
+def catmull_rom_flat(points: np.ndarray, starts: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """``catmull_rom`` of every stroke of flat strokes (points (N, 2), starts (S + 1,)) in one
+    compiled call; returns flat strokes."""
+    return _catmull_rom_all(np.ascontiguousarray(points, np.float64), np.asarray(starts, np.int64), float(spacing))
+
+
+def catmull_rom(points: np.ndarray, spacing: float) -> np.ndarray:
     """Smooth curve through the vertices (centripetal Catmull-Rom), sampled every ~``spacing``.
 
     Centripetal (alpha = 0.5) parameterization avoids cusps and overshoot at sharp corners that
-    the uniform variant produces, so corners of simplified outlines stay where they were.
+    the uniform variant produces, so corners of simplified outlines stay where they were. Fewer
+    than three distinct vertices: ``resample``.
     """
-    p = dedupe(points)
-    if len(p) < 3:
-        return resample(p, spacing)
-    # Phantom end points by reflection so the curve starts/ends at the real ends.
-    ext = np.concatenate([2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]])
-    d = np.maximum(np.linalg.norm(np.diff(ext, axis=0), axis=1) ** alpha, 1e-6)
-    knots = np.concatenate([[0.0], np.cumsum(d)])
-    # Segment i runs from p[i] to p[i+1] (ext index i+1 → i+2); sample all segments at once.
-    seg_len = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    counts = np.maximum(1, np.ceil(seg_len / max(spacing, 1e-6)).astype(int))
-    seg = np.repeat(np.arange(len(p) - 1), counts)
-    frac = (np.arange(len(seg)) - np.repeat(np.cumsum(counts) - counts, counts)) / counts[seg]
-    i = seg + 1
-    t0, t1, t2, t3 = (knots[i + k][:, None] for k in (-1, 0, 1, 2))
-    p0, p1, p2, p3 = (ext[i + k] for k in (-1, 0, 1, 2))
-    t = t1 + frac[:, None] * (t2 - t1)
-    a1 = (t1 - t) / (t1 - t0) * p0 + (t - t0) / (t1 - t0) * p1
-    a2 = (t2 - t) / (t2 - t1) * p1 + (t - t1) / (t2 - t1) * p2
-    a3 = (t3 - t) / (t3 - t2) * p2 + (t - t2) / (t3 - t2) * p3
-    b1 = (t2 - t) / (t2 - t0) * a1 + (t - t0) / (t2 - t0) * a2
-    b2 = (t3 - t) / (t3 - t1) * a2 + (t - t1) / (t3 - t1) * a3
-    curve = (t2 - t) / (t2 - t1) * b1 + (t - t1) / (t2 - t1) * b2
-    return np.concatenate([curve, p[-1:]])
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    return catmull_rom_flat(p, np.array([0, len(p)]), spacing)[0]
 
 
 def tangents(points: np.ndarray) -> np.ndarray:

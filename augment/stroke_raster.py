@@ -18,8 +18,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from augment.strokes import noise_knots
-
 # Coverage reaches this far (canvas px) past the nominal half-width: pixels whose centre is just
 # outside the outline are partly covered. Chosen so a sketch holds the same ink as the earlier
 # polygon fill, which counted such pixels in (BENCHMARKS.md, augment).
@@ -128,6 +126,31 @@ def _half_widths(arc, starts, knots, knot_starts, phases, wavelength, taper_leng
     return out
 
 
+@numba.njit(cache=True)
+def _pressure_draws(arc, starts, rng, lo, hi, wavelength):
+    """Per stroke, in stroke order: its darkness (uniform in [lo, hi]), then, for a stroke with
+    points, ``augment.strokes.noise_knots``' draws (knots in [-1, 1], one per wavelength + 2, and
+    the phase)."""
+    n_strokes = len(starts) - 1
+    knot_starts = np.zeros(n_strokes + 1, np.int64)
+    for k in range(n_strokes):
+        count = 0
+        if starts[k + 1] > starts[k]:
+            count = int(np.ceil(arc[starts[k + 1] - 1] / wavelength)) + 2
+        knot_starts[k + 1] = knot_starts[k] + count
+    darkness = np.empty(n_strokes)
+    knots = np.empty(knot_starts[-1])
+    phases = np.zeros(n_strokes)
+    for k in range(n_strokes):
+        darkness[k] = rng.uniform(lo, hi)
+        if starts[k + 1] == starts[k]:
+            continue
+        for i in range(knot_starts[k], knot_starts[k + 1]):
+            knots[i] = rng.uniform(-1.0, 1.0)
+        phases[k] = rng.random()
+    return darkness, knots, knot_starts, phases
+
+
 def half_widths(
     arc: np.ndarray,
     starts: np.ndarray,
@@ -143,20 +166,19 @@ def half_widths(
     Per stroke, in stroke order, it draws from ``rng``: the darkness (uniform in ``tones``), the
     noise knots (uniform in [-1, 1], one per ``wavelength`` of arc length + 2) and the noise phase.
     """
-    n_strokes = len(starts) - 1
-    darkness = np.empty(n_strokes)
-    knots, knot_counts, phases = [], np.zeros(n_strokes, np.int64), np.zeros(n_strokes)
-    for k in range(n_strokes):
-        darkness[k] = rng.uniform(*tones)
-        if starts[k + 1] == starts[k]:
-            continue
-        stroke_knots, phases[k] = noise_knots(rng, arc[starts[k + 1] - 1], wavelength)
-        knots.append(stroke_knots)
-        knot_counts[k] = len(stroke_knots)
-    knot_starts = np.concatenate([[0], np.cumsum(knot_counts)]).astype(np.int64)
-    flat = np.concatenate(knots) if knots else np.zeros(0)
+    darkness, knots, knot_starts, phases = _pressure_draws(
+        arc, starts, rng, float(tones[0]), float(tones[1]), float(wavelength)
+    )
     widths = _half_widths(
-        arc, starts, flat, knot_starts, phases, float(wavelength), float(taper_length), float(noise_amount), float(base)
+        arc,
+        starts,
+        knots,
+        knot_starts,
+        phases,
+        float(wavelength),
+        float(taper_length),
+        float(noise_amount),
+        float(base),
     )
     return widths, darkness
 

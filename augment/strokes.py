@@ -21,7 +21,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from augment.fitting import catmull_rom
+from augment.fitting import catmull_rom_flat
 from augment.settings import AugmentSettings
 
 Strokes = list[np.ndarray]
@@ -41,7 +41,8 @@ def _fma(typingctx, a, b, c):
 # ---------------------------------------------------------------- flat strokes
 
 
-def _flat(strokes: Strokes) -> tuple[np.ndarray, np.ndarray]:
+def flat_strokes(strokes: Strokes) -> tuple[np.ndarray, np.ndarray]:
+    """(points (N, 2) float64, starts (S + 1,) int64) of a list of strokes."""
     counts = np.array([len(s) for s in strokes], np.int64)
     starts = np.zeros(len(strokes) + 1, np.int64)
     np.cumsum(counts, out=starts[1:])
@@ -50,7 +51,8 @@ def _flat(strokes: Strokes) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([np.asarray(s, np.float64).reshape(-1, 2) for s in strokes]), starts
 
 
-def _strokes(points: np.ndarray, starts: np.ndarray) -> Strokes:
+def split_strokes(points: np.ndarray, starts: np.ndarray) -> Strokes:
+    """The strokes of flat ``points`` (views into it)."""
     return [points[a:b] for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())]
 
 
@@ -360,11 +362,11 @@ def cut(points: np.ndarray, s0: float, s1: float) -> np.ndarray:
 
 def resample_strokes(strokes: Strokes, spacing: float) -> Strokes:
     """Smooth (Catmull-Rom) curves through the simplified vertices, a point every ``spacing``."""
-    return [catmull_rom(s, spacing) for s in strokes if len(s) >= 2]
+    return split_strokes(*catmull_rom_flat(*flat_strokes([s for s in strokes if len(s) >= 2]), spacing))
 
 
 def _listed(kernel, strokes: Strokes, rng: np.random.Generator, *args) -> Strokes:
-    return _strokes(*kernel(*_flat(strokes), rng, *args))
+    return split_strokes(*kernel(*flat_strokes(strokes), rng, *args))
 
 
 def drop(
@@ -455,9 +457,9 @@ def augment_strokes(strokes: Strokes, rng: np.random.Generator, settings: Augmen
     """
     st = settings
     f = float
-    return _strokes(
+    return split_strokes(
         *_chain(
-            *_flat(strokes),
+            *flat_strokes(strokes),
             rng,
             (f(st.drop_short_length), f(st.drop_short_prob), f(st.drop_prob), f(st.drop_keep_fraction)),
             (f(st.split_prob), int(st.split_max_points), f(st.split_gap[0]), f(st.split_gap[1]), f(st.split_min_piece)),

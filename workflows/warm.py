@@ -14,8 +14,8 @@ import gc
 
 
 def warm_stage_code() -> None:
-    """Import every stage and run the vectorizer, the stroke augmentations and the pencil once on
-    a tiny drawing (compiles their numba functions in this process); then move everything
+    """Import every stage and run the vectorizer and a view's pencil variants once on a tiny
+    drawing (compiles their numba functions in this process); then move everything
     loaded so far out of the garbage collector's sight."""
     import cv2
     import numpy as np
@@ -31,16 +31,13 @@ def warm_stage_code() -> None:
     img = np.full((48, 48), 255, np.uint8)
     cv2.rectangle(img, (8, 8), (40, 40), 0, 2)
     cv2.line(img, (8, 24), (40, 24), 0, 2)  # a T-junction too: junction code paths compile
-    vectorize(img)
-    # the pencil's compiled steps too (augment.stroke_raster)
-    from augment.pencil import draw_pencil
-
-    draw_pencil([np.array([[4.0, 4.0], [20.0, 12.0]]), np.array([[8.0, 30.0]])], 32, 1.0, np.random.default_rng(0))
-    # the stroke augmentations' compiled chain (augment.strokes)
+    strokes = vectorize(img)
+    # a view's pencil variants too: resampling, stroke augmentations, tone strokes and the pencil,
+    # all compiled (augment.fitting, augment.strokes, augment.shading, augment.stroke_raster)
     from augment.settings import AugmentSettings
-    from augment.strokes import augment_strokes
+    from augment.variants import view_variants
 
-    augment_strokes([np.array([[4.0, 4.0], [20.0, 12.0], [30.0, 4.0]])], np.random.default_rng(0), AugmentSettings())
+    view_variants(strokes, 48, AugmentSettings(variants=2, out_size=32), (0, "warm", "warm", 0))
     # and the stroke files' compiled number writer (pipeline.core.points_text)
     from pipeline.core.points_text import points_json
 
