@@ -79,6 +79,11 @@ class FitSettings:
         "channels of the encoder's first stage, x1/2/4/8 in its four stages (64: "
         "ResNet-18 as in the paper; 32: about a third of its CPU time)",
     )
+    input_blur: float = setting(
+        0.0,
+        "feed the encoder two more channels, the drawing blurred at this sigma and 3x it (px at "
+        "--image-size; 0: the drawing alone, as in the paper)",
+    )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
@@ -153,7 +158,7 @@ class FitSettings:
             _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
             "0 (off) or a decay between 0 and 1",
         )
-        for name in ("clip_grad", "contrast", "match_normals"):
+        for name in ("clip_grad", "contrast", "match_normals", "input_blur"):
             value = getattr(self, name)
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
                 continue
@@ -342,7 +347,12 @@ def load_run(path: str | Path) -> TrainedRun:
     ckpt = load_checkpoint(path)
     settings = _saved_settings(path, ckpt)
     template = _saved_template(path, ckpt)
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=saved_basis(ckpt))
+    model = SketchToPatches(
+        template.initial_params(),
+        encoder_width=settings.encoder_width,
+        basis=saved_basis(ckpt),
+        input_blur=settings.input_blur,
+    )
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
@@ -598,9 +608,9 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     )
     basis = saved_basis(ckpt) if ckpt is not None else _new_basis(settings, template, info, out)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(template.initial_params(), encoder_width=settings.encoder_width, basis=basis).to(
-        info.device
-    )
+    model = SketchToPatches(
+        template.initial_params(), encoder_width=settings.encoder_width, basis=basis, input_blur=settings.input_blur
+    ).to(info.device)
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:

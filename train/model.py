@@ -16,6 +16,33 @@ from train.resnet import ResNet18
 HIDDEN = (1024, 512, 256)
 
 
+class InkFields(nn.Module):
+    """The drawing's darkness (B, 1, H, W) → itself and two Gaussian blurs of it (σ and 3σ px,
+    each scaled by σ·√(2π) so a line keeps about its darkness): thin strokes reach the first
+    convolution as broad fields, how far a pixel lies from ink."""
+
+    def __init__(self, sigma: float):
+        super().__init__()
+        kernels = []
+        for s in (sigma, 3.0 * sigma):
+            r = int(3.0 * s + 0.5)
+            x = torch.arange(-r, r + 1, dtype=torch.float32)
+            k = torch.exp(-0.5 * (x / s) ** 2)
+            kernels.append(k / k.sum())
+        self.radii = [len(k) // 2 for k in kernels]
+        self.gains = [s * (2.0 * torch.pi) ** 0.5 for s in (sigma, 3.0 * sigma)]
+        for i, k in enumerate(kernels):
+            self.register_buffer(f"k{i}", k, persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        out = [x]
+        for i, r in enumerate(self.radii):
+            k = getattr(self, f"k{i}")
+            y = nn.functional.conv2d(x, k.view(1, 1, 1, -1), padding=(0, r))
+            out.append(self.gains[i] * nn.functional.conv2d(y, k.view(1, 1, -1, 1), padding=(r, 0)))
+        return torch.cat(out, dim=1)
+
+
 class BasisReadout(nn.Module):
     """features (B, F) -> parameters (B, D) = bias + (features @ weight.T) @ basis.
 
@@ -45,11 +72,13 @@ class SketchToPatches(nn.Module):
         hidden: tuple[int, ...] = HIDDEN,
         encoder_width: int = 64,
         basis: torch.Tensor | None = None,
+        input_blur: float = 0.0,
     ):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        self.encoder = ResNet18(1, encoder_width)
+        self.fields = InkFields(input_blur) if input_blur > 0 else nn.Identity()
+        self.encoder = ResNet18(3 if input_blur > 0 else 1, encoder_width)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
@@ -70,7 +99,7 @@ class SketchToPatches(nn.Module):
         if images.dim() == 4:  # (B, 1, H, W): one view
             images = images.unsqueeze(1)
         b, v = images.shape[:2]
-        flat = images.flatten(0, 1)
+        flat = self.fields(images.flatten(0, 1))
         # read where the mask lives: a mask kept on the host (training's) costs no device read-back
         if view_mask is None or bool(view_mask.all()):
             return self.encoder(flat).view(b, v, -1).max(dim=1).values
