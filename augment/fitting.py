@@ -117,12 +117,12 @@ def _resampled(p, n0, spacing, out, o):
         if j == n - 1:
             t = s[n0 - 1]
         for axis in range(2):
-            out[o + j, axis] = _interp1(t, s, p[:n0, axis])
+            out[o + j, axis] = interp_one(t, s, p[:n0, axis])
     return o + n
 
 
 @numba.njit(cache=True)
-def _interp1(x, xp, fp):
+def interp_one(x, xp, fp):
     """``np.interp(x, xp, fp)`` for one x and a non-decreasing xp (numpy's formula and cases)."""
     n = len(xp)
     if x > xp[n - 1]:

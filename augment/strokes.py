@@ -21,7 +21,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from augment.fitting import catmull_rom_flat
+from augment.fitting import catmull_rom_flat, interp_one
 from augment.settings import AugmentSettings
 
 Strokes = list[np.ndarray]
@@ -66,49 +66,22 @@ def _arc(points, i0, i1):
 
 
 @numba.njit(cache=True)
-def _interp(x, xp, fp):
-    """``np.interp(x, xp, fp)`` for one x and a non-decreasing xp (numpy's formula and cases)."""
-    n = len(xp)
-    if x > xp[n - 1]:
-        return fp[n - 1]
-    if x < xp[0]:
-        return fp[0]
-    lo, hi = 0, n  # the last j with xp[j] <= x
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if x >= xp[mid]:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = lo - 1
-    if j == n - 1 or xp[j] == x:
-        return fp[j]
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    r = slope * (x - xp[j]) + fp[j]
-    if np.isnan(r):
-        r = slope * (x - xp[j + 1]) + fp[j + 1]
-        if np.isnan(r) and fp[j] == fp[j + 1]:
-            r = fp[j]
-    return r
-
-
-@numba.njit(cache=True)
 def _cut_into(points, i0, i1, arc, s0, s1, out, o, dx, dy):
     """Write ``cut(points[i0:i1], s0, s1)`` shifted by (dx, dy) at out[o:]; returns the new o."""
     s0 = max(0.0, s0)
     s1 = min(arc[len(arc) - 1], s1)
     xs = points[i0:i1, 0]
     ys = points[i0:i1, 1]
-    out[o, 0] = _interp(s0, arc, xs) + dx
-    out[o, 1] = _interp(s0, arc, ys) + dy
+    out[o, 0] = interp_one(s0, arc, xs) + dx
+    out[o, 1] = interp_one(s0, arc, ys) + dy
     o += 1
     for i in range(len(arc)):
         if arc[i] > s0 and arc[i] < s1:
             out[o, 0] = points[i0 + i, 0] + dx
             out[o, 1] = points[i0 + i, 1] + dy
             o += 1
-    out[o, 0] = _interp(s1, arc, xs) + dx
-    out[o, 1] = _interp(s1, arc, ys) + dy
+    out[o, 0] = interp_one(s1, arc, xs) + dx
+    out[o, 1] = interp_one(s1, arc, ys) + dy
     return o + 1
 
 

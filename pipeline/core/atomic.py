@@ -16,7 +16,6 @@ import itertools
 import json
 import os
 import signal
-import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -53,8 +52,6 @@ def storage_error(path: str | Path, exc: OSError) -> OSError:
 
 
 _fault_counts: dict[str, int] = {}
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
 
 
 def _fault_point(path: Path) -> None:
@@ -84,70 +81,35 @@ def _fault_point(path: Path) -> None:
         os.killpg(os.getpgid(0), signal.SIGKILL)
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it onto ``path`` only if the block succeeds.
-
-    The temp name keeps the target's suffix (or ``suffix``) so libraries that pick a format from
-    the extension (trimesh, cv2) still work.
-    """
-    path = Path(path)
-    suf = suffix if suffix is not None else "".join(path.suffixes)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suf}", dir=path.parent)
-    except OSError as exc:
-        raise storage_error(path, exc) from exc
-    os.close(fd)
-    tmp_path = Path(tmp)
-    # mkstemp creates mode 0600; give the file the usual umask mode so other users / machines
-    # sharing the storage can read what this worker wrote
-    os.chmod(tmp_path, 0o666 & ~_UMASK)
-    try:
-        yield tmp_path
-        _fault_point(path)
-        os.replace(tmp_path, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
-        if isinstance(exc, OSError):
-            raise storage_error(path, exc) from exc
-        raise
-
-
 _tmp_numbers = itertools.count()
 
 
-def write_bytes(path: str | Path, data: bytes) -> None:
-    """``data`` at ``path`` whole or not at all, on disk before the rename (fsync): what
-    :func:`atomic_path` gives, in five system calls instead of ten (a model writes ~45 files;
-    mkstemp, a chmod and a second open were half their cost). The temp name holds the process
-    id and a counter, so writers never share one; ``O_EXCL`` still refuses a leftover."""
-    path = Path(path)
+@contextlib.contextmanager
+def _replacing(path: Path, suffix: str) -> Iterator[tuple[int, Path]]:
+    """A new temp file next to ``path`` (its descriptor, for the block to close, and its path),
+    renamed onto ``path`` if the block succeeds, removed if not (storage errors named).
+
+    The temp name is hidden, holds the process id and a counter (writers never share one; a
+    leftover of a killed process is skipped, ``O_EXCL``) and keeps ``suffix``, so libraries that
+    pick a format from the extension (trimesh, cv2) still work; the umask sets its mode, as for
+    any new file, so other users and machines sharing the storage can read it. Open, write,
+    close and rename: half the system calls of mkstemp, a chmod and a second open.
+    """
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
-    suffix = "".join(path.suffixes)
     try:
         while True:
             tmp = path.parent / f".{path.name}.{os.getpid()}-{next(_tmp_numbers)}.tmp{suffix}"
             try:
-                fd = os.open(tmp, flags, 0o666)  # the umask applies, as to any new file
+                fd = os.open(tmp, flags, 0o666)
                 break
             except FileExistsError:
                 continue
             except FileNotFoundError:
                 path.parent.mkdir(parents=True, exist_ok=True)
-                fd = os.open(tmp, flags, 0o666)
-                break
     except OSError as exc:
         raise storage_error(path, exc) from exc
     try:
-        try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view) :]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        yield fd, tmp
         _fault_point(path)
         os.replace(tmp, path)
     except BaseException as exc:
@@ -156,6 +118,32 @@ def write_bytes(path: str | Path, data: bytes) -> None:
         if isinstance(exc, OSError):
             raise storage_error(path, exc) from exc
         raise
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only if the block succeeds.
+
+    The temp name keeps the target's suffix (or ``suffix``) for libraries that pick a format
+    from the extension.
+    """
+    path = Path(path)
+    with _replacing(path, suffix if suffix is not None else "".join(path.suffixes)) as (fd, tmp):
+        os.close(fd)
+        yield tmp
+
+
+def write_bytes(path: str | Path, data: bytes) -> None:
+    """``data`` at ``path`` whole or not at all, on disk before the rename (fsync)."""
+    path = Path(path)
+    with _replacing(path, "".join(path.suffixes)) as (fd, tmp):
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 def dumps_json(obj: Any) -> str:
