@@ -69,3 +69,18 @@ def test_training_net_returns_the_networks_parameters_and_the_pair_codes():
     out = t(x, None, pair)
     assert torch.equal(out["params"], m(x))
     assert torch.equal(out["codes"], m.encode(x)) and torch.equal(out["pair_codes"], m.encode(pair))
+
+
+def test_input_blur_feeds_the_drawing_and_two_ink_fields():
+    from train.model import InkFields
+
+    x = torch.zeros(1, 1, 64, 64)
+    x[..., 30:32, :] = 1.0  # a horizontal line two pixels thick
+    f = InkFields(2.0)(x)
+    assert f.shape == (1, 3, 64, 64) and torch.equal(f[:, :1], x)
+    # each field keeps about the line's darkness (2 px x 1) on the line and reaches off it
+    assert f[0, 1, 31, 32] == pytest.approx(2.0, rel=0.1) and f[0, 2, 31, 32] == pytest.approx(2.0, rel=0.1)
+    assert f[0, 1, 36, 32] > 0.01 and f[0, 1, 45, 32] < 1e-3 < f[0, 2, 45, 32]
+    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=8, input_blur=2.0).eval()
+    assert m.encoder.stem[0].in_channels == 3
+    assert torch.equal(m(torch.rand(2, 1, 1, 32, 32)), torch.linspace(-1, 1, 30).expand(2, 30))
