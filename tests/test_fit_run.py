@@ -122,6 +122,17 @@ def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):
     )
 
 
+def test_evaluate_mirror_average_answers_through_the_flipped_drawing_too(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 3, lr=1e-2), progress=False)
+    plain = evaluate(out / "checkpoint.pt", shards, "test", cad_check=0)
+    both = evaluate(out / "checkpoint.pt", shards, "test", cad_check=0, mirror_average=True)
+    assert both["mirror_average"] and not plain["mirror_average"]
+    assert both["template"] == plain["template"]  # the same samples and points
+    assert both["model"]["chamfer"] != plain["model"]["chamfer"]
+    assert both["blind"]["chamfer"] != plain["blind"]["chamfer"]  # the blind mean is the averaged network's
+
+
 @pytest.mark.slow
 def test_loss_decreases_over_training(shards, tmp_path):
     out = tmp_path / "long"

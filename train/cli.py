@@ -165,6 +165,7 @@ def _run(a: argparse.Namespace) -> None:
                 blind_dataset=e.blind_from,
                 leave_out=tuple(e.leave_out),
                 variant=e.variant,
+                mirror_average=e.mirror_average,
             )
         print(format_table(res))
         print(f"saved {e.out_path()}")
@@ -178,7 +179,7 @@ def _run(a: argparse.Namespace) -> None:
         if missing:
             raise UsageError(f"{' and '.join(missing)} required (or --list-parts)")
         p = from_args(PredictSettings, a)
-        res = predict(p.checkpoint, list(p.sketch), p.out, p.parts(), p.cad_units())
+        res = predict(p.checkpoint, list(p.sketch), p.out, p.parts(), p.cad_units(), p.mirror_average)
         if p.json:
             print(json.dumps(res, indent=1))
         # people read stderr: where the files are, then the verdict in words (a mesh can be

@@ -37,6 +37,7 @@ from train.geometry.intersections import count_intersecting_pairs
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
 from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
+from train.mirror_average import mirror_averaged
 from train.objective import Objective
 
 ALL_SPLITS = "all"  # --split all: every split the dataset has, as one set
@@ -140,6 +141,11 @@ class EvaluateSettings:
     tau: tuple[float, ...] = setting((0.02, 0.05), "F-score distance thresholds (unit-sphere frame)")
     limit: int | None = setting(None, "evaluate at most this many samples (default: all)")
     out: str | None = setting(None, "JSON path (default: eval_<checkpoint>_<split>.json next to the checkpoint)")
+    mirror_average: bool = setting(
+        False,
+        "answer each drawing with the mean of the network's reading of it and of its left-right flip, "
+        "mirrored back (symmetric templates; twice the inference cost; the blind mean alike)",
+    )
     cad_check: int = setting(
         16,
         "check this many predictions with the CAD kernel (cad_clean: the share predict would call clean; "
@@ -185,6 +191,7 @@ def evaluate(
     blind_dataset: str | Path | None = None,
     leave_out: tuple[str, ...] = (),
     variant: int = 0,
+    mirror_average: bool = False,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
     With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
@@ -194,13 +201,17 @@ def evaluate(
     data's mean output that the network must beat. ``leave_out``: patch labels measured as absent
     in every prediction (model, template and blind alike), for targets known to lack those parts:
     the TORCS car bodies have no wheels (the game adds its own). ``variant``: the pencil variant
-    drawn of each view, for the sketches and the blind mean alike."""
+    drawn of each view, for the sketches and the blind mean alike. ``mirror_average``: the network
+    answers through :class:`train.mirror_average.MirrorAverage`, for the sketches and the blind
+    mean alike."""
     check_evaluate_args(views, taus, limit)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
     if not (isinstance(variant, int) and variant >= 0):
         raise UsageError(f"variant must be an integer >= 0, got {variant!r} (--variant)")
     run = load_run(checkpoint)
+    if mirror_average:
+        run = mirror_averaged(run)
     s, template, model = run.settings, run.template, run.model
     try:
         objective = Objective(template, s.n_points, leave_out=tuple(leave_out))
@@ -236,6 +247,7 @@ def evaluate(
         "samples": count,
         "views": views,
         "variant": variant,
+        "mirror_average": mirror_average,
         "fscore_taus": list(taus),
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},

@@ -33,6 +33,7 @@ from train.export.step import write_step
 from train.export.units import CadFileSettings, CadUnits
 from train.fit import TrainedRun, load_run
 from train.geometry.intersections import Intersections, mesh_intersections
+from train.mirror_average import mirror_averaged
 from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.templates import FreePoint, JunctionPoint, Template, save_template
 
@@ -54,6 +55,11 @@ class PredictSettings(CadFileSettings):
         (),
         "optional parts of the checkpoint's template on or off, NAME=on|off; --list-parts prints a "
         f"checkpoint's parts (shipped templates: {SHIPPED_PARTS}); a wrong name is an error listing them",
+    )
+    mirror_average: bool = setting(
+        False,
+        "answer with the mean of the network's reading of the drawings and of their left-right flips, "
+        "mirrored back (symmetric templates; twice the inference cost)",
     )
     list_parts: bool = setting(False, "print the optional parts of the checkpoint's template and exit")
     json: bool = setting(False, "print the result as JSON on stdout (it is always written to OUT/prediction.json)")
@@ -241,11 +247,13 @@ def predict(
     out: str | Path,
     parts: dict[str, bool] | None = None,
     units: CadUnits = CadUnits(),
+    mirror_average: bool = False,
 ) -> dict:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"{out}: not a folder (--out)")
-    return predict_run(load_run(checkpoint), sketches, out, parts, units)
+    run = load_run(checkpoint)
+    return predict_run(mirror_averaged(run) if mirror_average else run, sketches, out, parts, units)
 
 
 def verdict_line(clean: bool, problems: list[str]) -> str:
