@@ -66,20 +66,50 @@ def silhouette_extent(settings: RenderSettings, vertices: np.ndarray, azimuth: f
     return silhouette_extents(settings, vertices, [(azimuth, elevation)])[0]
 
 
-def silhouette_extents(settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]) -> list[float]:
-    """:func:`silhouette_extent` of every (azimuth, elevation) in ``pairs``, all views projected
-    in one product (the same numbers as ``render.cameras.project`` view by view, in half the
-    time of 32 separate calls)."""
+def _projected(settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]) -> np.ndarray:
+    """Pixel coordinates ``(N, P, 2)`` of the vertices in every view of ``pairs``, all views
+    projected in one product (the same numbers as ``render.cameras.project`` view by view)."""
     from render.cameras import make_view
 
     points = np.asarray(vertices, float)
     homogeneous = np.c_[points, np.ones(len(points))]
     projections = np.concatenate([np.asarray(make_view(settings, a, e).projection, float) for a, e in pairs])
     h = (homogeneous @ projections.T).reshape(len(points), len(pairs), 3)
-    uv = h[:, :, :2] / h[:, :, 2:3]
+    return h[:, :, :2] / h[:, :, 2:3]
+
+
+def _extents(settings: RenderSettings, uv: np.ndarray) -> list[float]:
     # clipping is monotone, so the clipped box is the box clipped: two values a view, not all
     lo, hi = (np.clip(x, 0.0, settings.image_size) for x in (uv.min(axis=0), uv.max(axis=0)))
     return ((hi - lo).max(axis=1) / settings.image_size).tolist()
+
+
+def silhouette_extents(settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]) -> list[float]:
+    """:func:`silhouette_extent` of every (azimuth, elevation) in ``pairs``, all views projected
+    in one product (in half the time of 32 separate calls)."""
+    return _extents(settings, _projected(settings, vertices, pairs))
+
+
+def _hull_areas(settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]) -> list[float]:
+    import cv2
+    from scipy.spatial import ConvexHull  # only when asked for: the render worker starts without scipy
+
+    points = np.asarray(vertices, float)
+    # a perspective projection maps the solid hull onto the hull of the projection: project its
+    # few hundred corners, not every vertex
+    corners = points[ConvexHull(points).vertices] if len(points) > 8 else points
+    uv = np.clip(_projected(settings, corners, pairs), 0.0, settings.image_size).astype(np.float32)
+    frame = float(settings.image_size) ** 2
+    return [float(cv2.contourArea(cv2.convexHull(np.ascontiguousarray(uv[:, i])))) / frame for i in range(len(pairs))]
+
+
+def silhouette_hull_areas(
+    settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]
+) -> list[float]:
+    """Area of the convex hull of the model's projection in each view of ``pairs``, as a share of
+    the frame: how much of the model a view shows face-on. An airplane seen from the side, its
+    wings edge-on, spans the frame but covers a thin strip of it."""
+    return _hull_areas(settings, vertices, pairs)
 
 
 @register_rig("representative")
@@ -89,13 +119,22 @@ def representative_rig(
     """Random views (as "random") that show the model: of ``view_candidates`` seeded draws, the
     first ``views`` whose silhouette spans at least ``min_view_extent`` of the frame and
     ``view_extent_fraction`` of the widest candidate's; a view down a knife's blade, a blob a
-    tenth of the frame wide, is never drawn. When too few pass, the widest of the rest fill up."""
+    tenth of the frame wide, is never drawn. With ``view_area_fraction`` > 0 a kept view's
+    silhouette hull also covers that share of the largest candidate's (an airplane's wings not
+    edge-on). When too few pass, the widest (the largest, by area) of the rest fill up."""
     pairs = seeded_views(settings, seed, category, model_id, max(settings.view_candidates, settings.views))
-    extent = silhouette_extents(settings, vertices, pairs)
+    uv = _projected(settings, vertices, pairs)
+    extent = _extents(settings, uv)
     floor = max(settings.min_view_extent, settings.view_extent_fraction * max(extent))
-    kept = [i for i in range(len(pairs)) if extent[i] >= floor][: settings.views]
+    shows = [e >= floor for e in extent]
+    order = extent  # the fill-up's: widest first
+    if settings.view_area_fraction > 0:
+        area = _hull_areas(settings, vertices, pairs)
+        shows = [ok and a >= settings.view_area_fraction * max(area) for ok, a in zip(shows, area)]
+        order = area
+    kept = [i for i in range(len(pairs)) if shows[i]][: settings.views]
     if len(kept) < settings.views:
-        rest = sorted((i for i in range(len(pairs)) if i not in kept), key=lambda i: (-extent[i], i))
+        rest = sorted((i for i in range(len(pairs)) if i not in kept), key=lambda i: (-order[i], i))
         kept += rest[: settings.views - len(kept)]
     return [pairs[i] for i in kept]
 

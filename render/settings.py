@@ -44,6 +44,11 @@ class RenderSettings:
     min_view_extent: float = setting(0.35, "representative rig: a view's silhouette spans at least this of the frame")
     view_extent_fraction: float = setting(0.6, "... and at least this share of the widest candidate's")
     view_candidates: int = setting(32, "... out of this many seeded draws per model")
+    view_area_fraction: float = setting(
+        0.0,
+        "representative rig: a kept view's silhouette hull also covers this share of the largest "
+        "candidate's (0: off; an airplane seen with its wings edge-on covers little)",
+    )
     orthographic: bool = setting(False, "orthographic cameras instead of perspective")
     lens_mm: float = setting(50.0, "on a 36 mm sensor: 39.6° field of view")
     sensor_mm: float = setting(36.0, "sensor width; with lens_mm, the field of view")
@@ -74,8 +79,8 @@ class RenderSettings:
         unknown = set(self.edge_types) - set(EDGE_TYPES)
         if unknown or not self.edge_types:
             raise ValueError(f"edge_types must be a non-empty subset of {EDGE_TYPES}, got {self.edge_types!r}")
-        if not (0.0 <= self.min_view_extent <= 1.0 and 0.0 <= self.view_extent_fraction <= 1.0):
-            raise ValueError("min_view_extent and view_extent_fraction must lie in [0, 1]")
+        if not all(0.0 <= x <= 1.0 for x in (self.min_view_extent, self.view_extent_fraction, self.view_area_fraction)):
+            raise ValueError("min_view_extent, view_extent_fraction and view_area_fraction must lie in [0, 1]")
         if self.view_candidates < 1:
             raise ValueError("view_candidates must be >= 1")
         lo, hi = self.elevation_range

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from render.cameras import blender_matrix_world, project, rig
-from render.rigs import silhouette_extent
+from render.rigs import seeded_views, silhouette_extent, silhouette_hull_areas
 from render.settings import RenderSettings
 
 SPHERE = np.random.default_rng(0).normal(size=(2000, 3))
@@ -97,6 +97,31 @@ def test_representative_rig_never_looks_down_a_rod():
         views = rig(s, 0, "knife", model, rod)
         extents = [silhouette_extent(s, rod, v.azimuth_deg, v.elevation_deg) for v in views]
         assert len(views) == 8 and min(extents) >= 0.35
+
+
+def _plate(span: float = 1.0, thickness: float = 0.02) -> np.ndarray:
+    """A wing-like slab: wide along x and z, thin along y (up)."""
+    return np.array([[x, y, z] for x in (-span, span) for y in (-thickness, thickness) for z in (-span / 2, span / 2)])
+
+
+def test_view_area_fraction_keeps_views_that_show_the_plate_face_on():
+    plate = _plate()
+    by_extent = RenderSettings(views=4)
+    by_area = RenderSettings(views=4, view_area_fraction=0.6)
+    edge_on = []
+    for model in ("a", "b", "c", "d", "e"):
+        for s in (by_extent, by_area):
+            pairs = [(v.azimuth_deg, v.elevation_deg) for v in rig(s, 0, "airplane", model, plate)]
+            areas = silhouette_hull_areas(s, plate, pairs)
+            best = max(silhouette_hull_areas(s, plate, seeded_views(s, 0, "airplane", model, s.view_candidates)))
+            if s is by_area:
+                assert len(pairs) == 4 and min(areas) >= 0.6 * best
+                assert min(abs(e) for _, e in pairs) > 10  # never level with the wing
+            else:
+                edge_on.append(min(areas) / best)
+    assert min(edge_on) < 0.6  # the extent alone lets a wing be drawn edge-on
+    with pytest.raises(ValueError, match="view_area_fraction"):
+        RenderSettings(view_area_fraction=1.5)
 
 
 def test_representative_rig_keeps_random_views_of_a_round_model():
