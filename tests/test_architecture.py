@@ -53,6 +53,7 @@ TRAIN_LEVELS = {
     "train.template_fit": 5,  # a template fitted to shapes (the fit stage's and the shape basis' fit)
     "train.shape_basis": 6,
     "train.fit": 6,
+    "train.mirror_average": 7,  # inference through the flipped drawing too (evaluate, predict)
     "train.patch_fit": 7,  # the fit stage (a template fitted to shapes, no network) and its export
     "train.evaluate": 7,
     "train.predict": 7,
