@@ -1,5 +1,5 @@
-"""Rows of drawings from two or more builds of the same models side by side: the first view, pencil
-variant 0, of the first N models of a split, one row per build, each row labelled.
+"""The same models drawn by two or more builds, one row per build: the first view, pencil variant
+0, of the first N models of a split, each labelled with its build and model.
 
 Usage: .venv/bin/python bench/figure_view_rigs.py --category airplane --out docs/images/airplane_view_rigs.png \
            --build "default rig=data/airplane1000" --build "view_area_fraction 0.6=data/airplane1000_area"
@@ -8,29 +8,32 @@ Usage: .venv/bin/python bench/figure_view_rigs.py --category airplane --out docs
 from __future__ import annotations
 
 import argparse
-import glob
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
-import webdataset as wds
 
-from pipeline.core.schema import sketch_name
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pipeline.core.images import contact_sheet, save_png  # noqa: E402
+from pipeline.core.schema import sketch_name  # noqa: E402
+from pipeline.dataset.shards import iter_shard  # noqa: E402
 
 
-def first_drawings(dataset: Path, category: str, split: str, n: int) -> list[np.ndarray]:
-    """View 0, variant 0 of the first ``n`` models of ``split`` (shard order)."""
-    urls = sorted(glob.glob(str(dataset / category / f"{split}-*.tar")))
-    if not urls:
-        raise SystemExit(f"error: {dataset / category}: no {split} shards")
+def first_drawings(dataset: Path, category: str, split: str, n: int) -> list[tuple[str, np.ndarray]]:
+    """(model key, view 0 in variant 0) of the first ``n`` models of ``split``, in shard order."""
+    shards = sorted((dataset / category).glob(f"{split}-*.tar"))
+    if not shards:
+        raise SystemExit(f"error: {dataset / category}: no {split}-*.tar shards")
     member = sketch_name(0, 0)
     out = []
-    for sample in wds.WebDataset(urls, shardshuffle=False, empty_check=False):
-        if member in sample:
-            img = cv2.imdecode(np.frombuffer(sample[member], np.uint8), cv2.IMREAD_GRAYSCALE)
-            out.append(img)
-        if len(out) == n:
-            break
+    for shard in shards:
+        for key, members in iter_shard(shard):
+            if member in members:
+                out.append((key, cv2.imdecode(np.frombuffer(members[member], np.uint8), cv2.IMREAD_GRAYSCALE)))
+            if len(out) == n:
+                return out
     return out
 
 
@@ -42,19 +45,18 @@ def main() -> int:
     ap.add_argument("--models", type=int, default=8)
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args()
-    rows = []
+    images, labels = [], []
     for item in a.build:
         label, _, path = item.partition("=")
-        imgs = first_drawings(Path(path), a.category, a.split, a.models)
-        row = np.hstack(imgs)
-        band = np.full((22, row.shape[1]), 255, np.uint8)
-        cv2.putText(band, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 0, 1, cv2.LINE_AA)
-        rows.append(np.vstack([band, row]))
-    width = max(r.shape[1] for r in rows)
-    sheet = np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1])), constant_values=255) for r in rows])
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(a.out), sheet)
-    print(f"wrote {a.out} ({len(rows)} rows of {a.models})")
+        row = first_drawings(Path(path), a.category, a.split, a.models)
+        if len(row) < a.models:
+            raise SystemExit(
+                f"error: {path}: {len(row)} {a.split} models with a {sketch_name(0, 0)}, {a.models} asked for"
+            )
+        images += [img for _, img in row]
+        labels += [f"{label}: {key}" if j == 0 else key for j, (key, _) in enumerate(row)]
+    save_png(a.out, contact_sheet(images, labels, cols=a.models))
+    print(f"wrote {a.out} ({len(a.build)} rows of {a.models})")
     return 0
 
 
