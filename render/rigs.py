@@ -90,26 +90,25 @@ def silhouette_extents(settings: RenderSettings, vertices: np.ndarray, pairs: li
     return _extents(settings, _projected(settings, vertices, pairs))
 
 
-def _hull_areas(settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]) -> list[float]:
-    import cv2
-    from scipy.spatial import ConvexHull  # only when asked for: the render worker starts without scipy
-
-    points = np.asarray(vertices, float)
-    # a perspective projection maps the solid hull onto the hull of the projection: project its
-    # few hundred corners, not every vertex
-    corners = points[ConvexHull(points).vertices] if len(points) > 8 else points
-    uv = np.clip(_projected(settings, corners, pairs), 0.0, settings.image_size).astype(np.float32)
-    frame = float(settings.image_size) ** 2
-    return [float(cv2.contourArea(cv2.convexHull(np.ascontiguousarray(uv[:, i])))) / frame for i in range(len(pairs))]
-
-
 def silhouette_hull_areas(
     settings: RenderSettings, vertices: np.ndarray, pairs: list[tuple[float, float]]
 ) -> list[float]:
     """Area of the convex hull of the model's projection in each view of ``pairs``, as a share of
     the frame: how much of the model a view shows face-on. An airplane seen from the side, its
     wings edge-on, spans the frame but covers a thin strip of it."""
-    return _hull_areas(settings, vertices, pairs)
+    import cv2
+    from scipy.spatial import ConvexHull, QhullError  # only when asked for: the worker starts without scipy
+
+    points = np.asarray(vertices, float)
+    # a perspective projection maps the solid hull onto the hull of the projection: project its
+    # few hundred corners, not every vertex (all of them when the points span no volume)
+    try:
+        corners = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        corners = points
+    uv = np.clip(_projected(settings, corners, pairs), 0.0, settings.image_size).astype(np.float32)
+    frame = float(settings.image_size) ** 2
+    return [float(cv2.contourArea(cv2.convexHull(np.ascontiguousarray(uv[:, i])))) / frame for i in range(len(pairs))]
 
 
 @register_rig("representative")
@@ -129,7 +128,7 @@ def representative_rig(
     shows = [e >= floor for e in extent]
     order = extent  # the fill-up's: widest first
     if settings.view_area_fraction > 0:
-        area = _hull_areas(settings, vertices, pairs)
+        area = silhouette_hull_areas(settings, vertices, pairs)
         shows = [ok and a >= settings.view_area_fraction * max(area) for ok, a in zip(shows, area)]
         order = area
     kept = [i for i in range(len(pairs)) if shows[i]][: settings.views]

@@ -122,6 +122,10 @@ def test_view_area_fraction_keeps_views_that_show_the_plate_face_on():
     assert min(edge_on) < 0.6  # the extent alone lets a wing be drawn edge-on
     with pytest.raises(ValueError, match="view_area_fraction"):
         RenderSettings(view_area_fraction=1.5)
+    # points that span no volume (a flat sheet) have no solid hull: their own projection is used
+    sheet = np.array([[x, 0.0, z] for x in np.linspace(-1, 1, 10) for z in np.linspace(-0.5, 0.5, 10)])
+    assert len(rig(by_area, 0, "airplane", "a", sheet)) == 4
+    assert min(silhouette_hull_areas(by_area, sheet, [(30.0, 20.0), (30.0, 40.0)])) > 0
 
 
 def test_representative_rig_keeps_random_views_of_a_round_model():
