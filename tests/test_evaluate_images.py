@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import box_sketch, camera  # noqa: E402
 
 from train.cli import main
+from train.errors import UsageError
 from train.evaluate_images import evaluate_images
 from train.export.quadmesh import quad_mesh
 from train.fit import FitSettings, save_checkpoint
@@ -103,3 +104,11 @@ def test_bad_folders_and_meshes_are_one_line_errors(world, tmp_path, capsys) -> 
     line = _error(capsys, ["evaluate", "--checkpoint", ck, "--images", str(broken), "--out", str(tmp_path / "e.json")])
     assert f"{broken / 'k.ply'}: not a readable mesh" in line and "\n" not in line
     assert not (tmp_path / "e.json").exists()
+
+
+def test_mirror_average_is_refused_by_name_for_a_template_without_a_mirror(world, tmp_path) -> None:
+    """The knife template's curves do not pair up across a plane: --mirror-average says so before
+    any drawing is read or any file written."""
+    with pytest.raises(UsageError, match="'knife'.*--mirror-average"):
+        evaluate_images(world["ckpt"], world["images"], out=tmp_path / "m.json", mirror_average=True)
+    assert not (tmp_path / "m.json").exists()

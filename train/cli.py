@@ -145,7 +145,13 @@ def _run(a: argparse.Namespace) -> None:
             from train.evaluate_images import evaluate_images, format_rows
 
             res = evaluate_images(
-                e.checkpoint, e.images, tuple(e.tau), e.limit, e.out_path(), cad_check=e.cad_check > 0
+                e.checkpoint,
+                e.images,
+                tuple(e.tau),
+                e.limit,
+                e.out_path(),
+                cad_check=e.cad_check > 0,
+                mirror_average=e.mirror_average,
             )
             print(format_rows(res))
             print(format_table(res))

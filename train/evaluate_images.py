@@ -28,6 +28,7 @@ from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict
 from train.export.units import CadUnits
 from train.fit import load_run
+from train.mirror_average import mirror_averaged
 from train.objective import Objective
 from train.predict import load_sketches, predict_params
 
@@ -84,13 +85,17 @@ def evaluate_images(
     limit: int | None = None,
     out: str | Path | None = None,
     cad_check: bool = True,
+    mirror_average: bool = False,
 ) -> dict:
     """Per image: what normalization did, the kernel's verdict and (with a ground-truth mesh)
     the metrics; means over the images for the network (``model``) and the template alone
-    (``template``, on images with ground truth); saved as JSON when ``out``."""
+    (``template``, on images with ground truth); saved as JSON when ``out``. ``mirror_average``:
+    the network answers through :class:`train.mirror_average.MirrorAverage`, as predict's flag."""
     check_evaluate_args(1, taus, limit)
     files = image_files(folder)[:limit]
     run = load_run(checkpoint)
+    if mirror_average:
+        run = mirror_averaged(run)
     template, s = run.template, run.settings
     objective = Objective(template, s.n_points)
     names = metric_names(tuple(taus))
@@ -132,6 +137,7 @@ def evaluate_images(
         rows.append(row)
     result = {
         "checkpoint": str(checkpoint),
+        "mirror_average": mirror_average,
         "step": run.step,
         "images": str(folder),
         "samples": len(rows),
