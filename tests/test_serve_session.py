@@ -23,15 +23,16 @@ from train.serve.session import ServeSession, checkpoint_labels, has_strokes, vi
 from train.serve.view_mesh import CROSSING_COLOR, read_patch_obj, write_view_glb
 
 
-def tiny_checkpoint(root: Path) -> Path:
-    """Two steps of training on the knife template (small: the full export stays fast)."""
+def tiny_checkpoint(root: Path, category: str = "knife") -> Path:
+    """Two steps of training on the category's template (the knife's is small: the full export
+    stays fast)."""
     torch.set_num_threads(1)
-    shards = write_fixture_shards(root / "ds", n_points=600, size=32)
+    shards = write_fixture_shards(root / "ds", category, n_points=600, size=32)
     out = root / "run"
     s = FitSettings(
         dataset=str(shards),
-        category="knife",
-        template="knife",
+        category=category,
+        template=category,
         out=str(out),
         steps=2,
         batch_size=2,
@@ -119,6 +120,27 @@ def test_a_failed_request_leaves_no_folder(checkpoint, tmp_path):
     with pytest.raises(UsageError, match="no drawing"):
         bed.predict([])
     assert list((tmp_path / "serve").iterdir()) == []
+
+
+def test_the_mirror_average_toggle_is_predicts_flag(checkpoint, tmp_path):
+    """The page's toggle gives what `predict --mirror-average` gives, says so in prediction.json,
+    and is refused by name, before any folder, for a template whose parameters do not mirror."""
+    knife = ServeSession([checkpoint], tmp_path / "serve")
+    assert not knife.mirrors()
+    with pytest.raises(UsageError, match="knife.*mirror-average"):
+        knife.predict([drawing()], mirror_average=True)
+    assert not list((tmp_path / "serve").glob("*"))
+    car_ck = tiny_checkpoint(tmp_path / "car", "car")
+    car = ServeSession([car_ck], tmp_path / "serve")
+    assert car.mirrors()
+    plain = car.predict([drawing()])
+    averaged = car.predict([drawing()], mirror_average=True)
+    assert averaged.prediction["mirror_average"] and not plain.prediction["mirror_average"]
+    ref = predict(car_ck, [averaged.folder / "view_0.png"], tmp_path / "pred", mirror_average=True)
+    assert ref["mirror_average"]
+    got = np.load(averaged.folder / "patches.npy")
+    assert np.array_equal(np.load(tmp_path / "pred" / "patches.npy"), got)
+    assert not np.allclose(np.load(plain.folder / "patches.npy"), got)  # the toggle changes the answer
 
 
 def test_the_3d_view_colours_the_crossing_patches(checkpoint, tmp_path):

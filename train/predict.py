@@ -33,7 +33,7 @@ from train.export.step import write_step
 from train.export.units import CadFileSettings, CadUnits
 from train.fit import TrainedRun, load_run
 from train.geometry.intersections import Intersections, mesh_intersections
-from train.mirror_average import mirror_averaged
+from train.mirror_average import MirrorAverage, mirror_averaged
 from train.sketch_input import Framing, SketchError, normalize_sketch
 from train.templates import FreePoint, JunctionPoint, Template, save_template
 
@@ -292,6 +292,11 @@ def predict_run(
     save_template(predicted_template(template, params), out / "patches.json")
     save_inputs(out, seen)
     patches = template.patches_from_params(params[None].double())[0].numpy()[keep]
-    result = {"input": seen.reports, "jitter_copies": STEADY_COPIES, **export_patches(patches, out, units)}
+    result = {
+        "input": seen.reports,
+        "jitter_copies": STEADY_COPIES,
+        "mirror_average": isinstance(run.model, MirrorAverage),
+        **export_patches(patches, out, units),
+    }
     write_json(out / "prediction.json", result)
     return result

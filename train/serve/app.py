@@ -39,16 +39,20 @@ def build_page(bed: ServeSession) -> gr.Blocks:
 
     def on_checkpoint(label: str):
         names = bed.parts(label)
-        return gr.CheckboxGroup(choices=names, value=names, visible=bool(names))
+        return (
+            gr.CheckboxGroup(choices=names, value=names, visible=bool(names)),
+            gr.Checkbox(value=False, visible=bed.mirrors(label)),
+        )
 
-    def on_run(label: str, drawing, uploads, ticked: list[str]):
+    def on_run(label: str, drawing, uploads, ticked: list[str], mirror: bool):
         views = []
         composite = drawing.get("composite") if isinstance(drawing, dict) else None
         if composite is not None and has_strokes(composite):
             views.append(composite)
         views += [str(u) for u in uploads or []]
         try:
-            res = bed.predict(views, label, {p: p in (ticked or []) for p in bed.parts(label)})
+            parts = {p: p in (ticked or []) for p in bed.parts(label)}
+            res = bed.predict(views, label, parts, mirror_average=bool(mirror) and bed.mirrors(label))
         except UsageError as exc:
             raise gr.Error(one_line(exc)) from None
         downloads = [str(res.files[k]) for k in ("step", "iges", "obj", "quads")]
@@ -80,6 +84,12 @@ def build_page(bed: ServeSession) -> gr.Blocks:
                 parts = gr.CheckboxGroup(
                     parts0, value=parts0, label="optional parts (untick: off)", visible=bool(parts0), elem_id="parts"
                 )
+                mirror = gr.Checkbox(
+                    False,
+                    label="also read the drawing mirrored left to right, and average (twice the time)",
+                    visible=bed.mirrors(labels[0]),
+                    elem_id="mirror-average",
+                )
                 go = gr.Button("Make CAD", variant="primary", elem_id="make-cad")
             with gr.Column():
                 verdict = gr.Markdown(elem_id="verdict")
@@ -96,8 +106,8 @@ def build_page(bed: ServeSession) -> gr.Blocks:
                     interactive=False,
                     elem_id="downloads",
                 )
-        checkpoint.change(on_checkpoint, checkpoint, parts)
-        go.click(on_run, [checkpoint, pad, uploads, parts], [view, verdict, seen, files])
+        checkpoint.change(on_checkpoint, checkpoint, [parts, mirror])
+        go.click(on_run, [checkpoint, pad, uploads, parts, mirror], [view, verdict, seen, files])
     return page
 
 

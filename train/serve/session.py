@@ -20,9 +20,11 @@ import numpy as np
 
 from pipeline.core.atomic import write_bytes
 from pipeline.core.settings_io import setting
+from train.data import param_mirror
 from train.errors import UsageError
 from train.export.units import CadFileSettings, CadUnits
 from train.fit import TrainedRun, load_run
+from train.mirror_average import mirror_averaged
 from train.predict import predict_run, verdict_line
 from train.serve.view_mesh import write_view_glb
 
@@ -122,6 +124,7 @@ class ServeSession:
         }
         self.out = Path(out)
         self.units = units
+        self._mirrored: dict[str, TrainedRun] = {}  # label -> the run through MirrorAverage, made on first use
 
     @property
     def labels(self) -> list[str]:
@@ -134,6 +137,10 @@ class ServeSession:
             raise UsageError(f"no checkpoint {label!r}; loaded: {', '.join(self.runs)}")
         return self.runs[label]
 
+    def mirrors(self, label: str | None = None) -> bool:
+        """Whether the checkpoint's template mirrors its parameters (the page's mirror-average toggle)."""
+        return param_mirror(self.run(label).template) is not None
+
     def parts(self, label: str | None = None) -> list[str]:
         """The optional parts of the checkpoint's template (the page's toggles)."""
         return list(self.run(label).template.part_names)
@@ -143,12 +150,19 @@ class ServeSession:
         views: Sequence[bytes | np.ndarray | str | Path],
         label: str | None = None,
         parts: dict[str, bool] | None = None,
+        mirror_average: bool = False,
     ) -> ServeResult:
         """Predict from one or more views of one object into a new folder under ``out``; a
-        failure (no drawing, a wrong part) leaves no folder behind."""
+        failure (no drawing, a wrong part, a template without a mirror) leaves no folder behind.
+        ``mirror_average``: as ``predict --mirror-average``."""
         if not views:
             raise UsageError("no drawing: draw on the sketchpad or upload one or more views")
         run = self.run(label)
+        if mirror_average:
+            key = label or self.labels[0]
+            if key not in self._mirrored:
+                self._mirrored[key] = mirror_averaged(run)
+            run = self._mirrored[key]
         self.out.mkdir(parents=True, exist_ok=True)
         folder = Path(tempfile.mkdtemp(prefix=time.strftime("%Y%m%d-%H%M%S-"), dir=self.out))
         try:
