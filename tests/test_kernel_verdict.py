@@ -14,7 +14,7 @@ import torch
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import kernel_verdict, step_file_verdict
 from train.export.quadmesh import patch_intersections
-from train.export.step import write_step
+from train.export.step import bezier_face, sew_patches, write_step
 from train.export.units import CadUnits
 from train.templates import load_template
 
@@ -71,3 +71,49 @@ def test_kernel_finds_a_shallow_crossing_the_mesh_test_misses() -> None:
 def test_template_is_clean_for_the_kernel() -> None:
     verdict = kernel_verdict(coons_to_bezier(_patches("knife", 0.0, 0)))
     assert verdict.clean and verdict.solid and verdict.patch_pairs == []
+
+
+def _centres(faces: list) -> np.ndarray:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    out = []
+    for face in faces:
+        props = GProp_GProps()
+        BRepGProp.SurfaceProperties_s(face, props)
+        c = props.CentreOfMass()
+        out.append((c.X(), c.Y(), c.Z()))
+    return np.array(out)
+
+
+def test_each_patch_keeps_its_own_sewn_face() -> None:
+    """Sewing lists its faces in an order of its own (the airplane's is shuffled): the faces the
+    verdict maps back to patches must be each patch's own."""
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+
+    nets = coons_to_bezier(_patches("airplane", 0.0, 0))
+    sewn = sew_patches(nets)
+    own = _centres([bezier_face(net) for net in nets])
+    assert np.abs(_centres(sewn.patch_faces) - own).max() < 1e-9
+    listed, ex = [], TopExp_Explorer(sewn.shape, TopAbs_FACE)
+    while ex.More():
+        listed.append(ex.Current())
+        ex.Next()
+    assert len(listed) == len(nets) and not np.allclose(_centres(listed), own)  # why the map is needed
+
+
+def test_the_patches_the_verdict_names_touch_each_other() -> None:
+    """Every pair the kernel names interferes, so its two patches meet: sampled on a fine grid,
+    they come within a grid step of each other (patches far apart mean a wrong face map)."""
+    from scipy.spatial import cKDTree
+
+    from train.geometry.triangulate import triangulate_patches
+
+    patches = _patches("airplane", 0.01, 3)
+    verdict = kernel_verdict(coons_to_bezier(patches) * CadUnits().mm)
+    assert verdict.patch_pairs, "the noisy airplane crosses somewhere"
+    points = triangulate_patches(torch.from_numpy(patches), 24)[0].numpy()
+    for i, j in verdict.patch_pairs:
+        gap = cKDTree(points[i]).query(points[j])[0].min()
+        assert gap < 0.01, f"patches {i} and {j} are {gap:.3f} apart, yet named as interfering"

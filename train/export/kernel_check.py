@@ -6,7 +6,8 @@ sub-shapes of the solid exactly (faces on their bicubic surfaces, not a triangul
 reports the pairs that interfere. Shared edges of sewn neighbours do not count; a shallow
 crossing that a coarse triangulation misses does.
 
-Faces come out of ``sew_patches`` in patch order, so the faulty faces map back to patch indices.
+Sewing lists its faces in an order of its own; ``sew_patches`` keeps each patch's sewn face, and
+the faulty faces map back to patch indices through them.
 """
 
 from __future__ import annotations
@@ -26,17 +27,6 @@ class KernelVerdict:
     @property
     def clean(self) -> bool:
         return self.faulty == 0
-
-
-def _faces(shape) -> list:
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-
-    found, ex = [], TopExp_Explorer(shape, TopAbs_FACE)
-    while ex.More():
-        found.append(ex.Current())
-        ex.Next()
-    return found
 
 
 def _face_index(faces: list, shape) -> int | None:
@@ -73,7 +63,7 @@ def solid_verdict(sewn) -> KernelVerdict:
     ``write_step`` returns), faults mapped to patch indices."""
     from OCP.TopAbs import TopAbs_FACE
 
-    faces = _faces(sewn.shape)
+    faces = sewn.patch_faces
     count, faulty = self_interference(sewn.shape)
     pairs, folded = set(), set()
     for shapes in faulty:

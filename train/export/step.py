@@ -34,6 +34,8 @@ class SewnPatches:
     faces: int
     free_edges: int
     solid: bool
+    # the sewn face of each patch, in patch order (sewing lists its faces in an order of its own)
+    patch_faces: list
 
 
 def quiet_opencascade() -> None:
@@ -71,10 +73,12 @@ def sew_patches(nets: np.ndarray) -> SewnPatches:
     nets = np.asarray(nets, dtype=np.float64)
     extent = float(np.ptp(nets.reshape(-1, 3), axis=0).max()) if nets.size else 1.0
     sewing = BRepBuilderAPI_Sewing(SEW_TOLERANCE * max(extent, 1e-12))
-    for net in nets:
-        sewing.Add(bezier_face(net))
+    made = [bezier_face(net) for net in nets]
+    for face in made:
+        sewing.Add(face)
     sewing.Perform()
     shape = sewing.SewedShape()
+    patch_faces = [sewing.Modified(face) if sewing.IsModified(face) else face for face in made]
     free = sewing.NbFreeEdges()
     solid = False
     if free == 0 and shape.ShapeType() == TopAbs_SHELL:
@@ -90,7 +94,7 @@ def sew_patches(nets: np.ndarray) -> SewnPatches:
                 shells = (TopoDS.Shell(shape), TopoDS.Shell(shape.Reversed()))
                 oriented = max((BRepBuilderAPI_MakeSolid(sh).Solid() for sh in shells), key=signed_volume)
             shape, solid = oriented, True
-    return SewnPatches(shape, len(nets), int(free), solid)
+    return SewnPatches(shape, len(nets), int(free), solid, patch_faces)
 
 
 def signed_volume(shape) -> float:
