@@ -117,3 +117,23 @@ def test_the_patches_the_verdict_names_touch_each_other() -> None:
     for i, j in verdict.patch_pairs:
         gap = cKDTree(points[i]).query(points[j])[0].min()
         assert gap < 0.01, f"patches {i} and {j} are {gap:.3f} apart, yet named as interfering"
+
+
+def test_a_face_the_kernel_names_alone_is_folded() -> None:
+    """A fault with one face is a patch that passes through itself: listed as folded (the
+    testbed colours it), not dropped."""
+    from OCP.TopAbs import TopAbs_FACE
+
+    from train.export.kernel_check import self_interference, solid_verdict
+
+    sewn = sew_patches(coons_to_bezier(_patches("knife", 0.05, 4)) * CadUnits().mm)
+    _, faulty = self_interference(sewn.shape)
+    alone = {
+        i
+        for shapes in faulty
+        if len(shapes) == 1 and shapes[0].ShapeType() == TopAbs_FACE
+        for i, face in enumerate(sewn.patch_faces)
+        if face.IsSame(shapes[0])
+    }
+    assert alone, "this noisy knife has patches that pass through themselves"
+    assert alone <= set(solid_verdict(sewn).folded_patches)

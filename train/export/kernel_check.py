@@ -69,7 +69,8 @@ def solid_verdict(sewn) -> KernelVerdict:
     for shapes in faulty:
         # an edge or vertex stands for the faces it bounds
         owners = [[_face_index(faces, s)] if s.ShapeType() == TopAbs_FACE else _owner_faces(faces, s) for s in shapes]
-        if len(owners) < 2:
+        if len(owners) == 1:  # a face that passes through itself
+            folded.update(a for a in owners[0] if a is not None)
             continue
         for a in owners[0]:
             for b in owners[1]:
