@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import box_sketch, camera  # noqa: E402
 from test_serve_session import tiny_checkpoint  # noqa: E402
 
+from pipeline.core.atomic import read_json  # noqa: E402
 from train.export.kernel_check import step_file_verdict  # noqa: E402
 from train.predict import predict  # noqa: E402
 from train.serve.browser import make_cad, running_server  # noqa: E402
@@ -55,3 +56,16 @@ def test_the_page_turns_a_drawing_and_an_upload_into_a_valid_step(tmp_path):
     up_folder = Path(re.search(r"folder: (\S+)", uploaded["verdict"]).group(1))
     assert (up_folder / "view_0.png").read_bytes() == sketch.read_bytes()
     assert (tmp_path / "serve.png").stat().st_size > 10_000
+    assert not drawn["mirror_box"]  # the knife's template does not mirror: no tick box
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).is_file(), reason="no Chromium: make browser")
+def test_the_pages_mirror_average_box_is_predicts_flag(tmp_path):
+    ck = tiny_checkpoint(tmp_path, "car")  # the car's template mirrors
+    with running_server([str(ck)], tmp_path / "serve") as url:
+        res = make_cad(url, tmp_path / "got", chromium=CHROMIUM, mirror_average=True)
+    assert res["mirror_box"]
+    folder = Path(re.search(r"folder: (\S+)", res["verdict"]).group(1))
+    assert read_json(folder / "prediction.json")["mirror_average"]
+    predict(ck, [folder / "view_0.png"], tmp_path / "ref", mirror_average=True)
+    assert np.array_equal(np.load(tmp_path / "ref" / "patches.npy"), np.load(folder / "patches.npy"))

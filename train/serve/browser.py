@@ -57,6 +57,7 @@ class BrowserSettings:
     sketch: tuple[str, ...] = setting((), "views to upload (none: draw a box on the sketchpad with the mouse)")
     downloads: str = setting("serve-out/browser", "folder for the files downloaded through the page")
     screenshot: str | None = setting(None, "save a screenshot of the page with its result here (PNG)")
+    mirror_average: bool = setting(False, "tick the page's mirror average (templates that mirror: airplane, car)")
     chromium: str = setting("/usr/bin/chromium", "the Chromium executable (Debian's package)")
     timeout: float = setting(300.0, "seconds to wait for the server and for the prediction")
 
@@ -123,9 +124,11 @@ def make_cad(
     screenshot: str | Path | None = None,
     chromium: str = "/usr/bin/chromium",
     timeout: float = 300.0,
+    mirror_average: bool = False,
 ) -> dict:
-    """Open the page, upload ``sketches`` (or draw a box), press Make CAD, wait for the 3D view,
-    download every offered file through the browser. Returns {"verdict": text, "files": {name: path}}."""
+    """Open the page, upload ``sketches`` (or draw a box), tick the mirror average if asked, press
+    Make CAD, wait for the 3D view, download every offered file through the browser. Returns
+    {"verdict": text, "files": {name: path}, "mirror_box": whether the page showed the tick box}."""
     from playwright.sync_api import sync_playwright
 
     if not Path(chromium).is_file():
@@ -153,6 +156,12 @@ def make_cad(
                         page.locator(f"#uploads a[download='{name}']").wait_for()
                 else:
                     draw_box(page)
+                box = page.locator("#mirror-average input[type=checkbox]")
+                mirror_box = box.count() > 0 and box.is_visible()
+                if mirror_average:
+                    if not mirror_box:
+                        raise UsageError("the page offers no mirror average for this checkpoint's template")
+                    box.check()
                 page.locator("#make-cad").click()
                 page.locator("#model3d canvas").wait_for()
                 links = page.locator("#downloads a[download]")
@@ -173,7 +182,7 @@ def make_cad(
                 ctx.close()
     finally:
         shutil.rmtree(profile, ignore_errors=True)
-    return {"verdict": verdict, "files": files}
+    return {"verdict": verdict, "files": files, "mirror_box": mirror_box}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -182,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     s = from_args(BrowserSettings, parser.parse_args(argv))
     out = Path(s.downloads)
     with running_server(list(s.checkpoint), out / "server", s.timeout) as url:
-        res = make_cad(url, out, list(s.sketch), s.screenshot, s.chromium, s.timeout)
+        res = make_cad(url, out, list(s.sketch), s.screenshot, s.chromium, s.timeout, s.mirror_average)
     print(res["verdict"])
     print("downloaded: " + " ".join(str(p) for p in res["files"].values()))
     return 0
