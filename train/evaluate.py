@@ -30,7 +30,7 @@ from pipeline.core.settings_io import setting
 from train.data import DataSettings, NoShards, make_loader, shard_urls
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
-from train.export.kernel_check import kernel_verdict
+from train.export.kernel_check import KernelVerdict, kernel_verdict
 from train.export.units import CadUnits
 from train.fit import load_run
 from train.geometry.intersections import count_intersecting_pairs
@@ -80,15 +80,14 @@ def batch_metrics(
     return out
 
 
-def cad_verdicts(objective: Objective, params: torch.Tensor, meta: list[dict]) -> list[bool]:
-    """The CAD kernel's clean verdict for each prediction, on its present patches, at the CAD
-    export's scale (as ``predict`` sews and checks them)."""
+def cad_verdicts(objective: Objective, params: torch.Tensor, meta: list[dict]) -> list[KernelVerdict]:
+    """The CAD kernel's verdict on each prediction, on its present patches (its patch indices
+    count those), at the CAD export's scale (as ``predict`` sews and checks them)."""
     mask = objective.patch_mask(meta, params.device)
     patches = objective.template.patches_from_params(params.double())
     mm = CadUnits().mm
     return [
-        kernel_verdict(coons_to_bezier((p if mask is None else p[mask[b]]).numpy()) * mm).clean
-        for b, p in enumerate(patches)
+        kernel_verdict(coons_to_bezier((p if mask is None else p[mask[b]]).numpy()) * mm) for b, p in enumerate(patches)
     ]
 
 
@@ -231,7 +230,7 @@ def evaluate(
     for batch in _batches(dataset, cat, split, data, batch_size):
         params = model(batch["images"], batch["view_mask"])
         if len(verdicts) < cad_check:
-            verdicts += cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])
+            verdicts += [v.clean for v in cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])]
         for name, p in (("model", params), ("template", base.expand_as(params)), ("blind", blind.expand_as(params))):
             for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
                 sums[name][k] += float(v.sum())

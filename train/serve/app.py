@@ -52,7 +52,7 @@ def build_page(bed: ServeSession) -> gr.Blocks:
         views += [str(u) for u in uploads or []]
         try:
             parts = {p: p in (ticked or []) for p in bed.parts(label)}
-            res = bed.predict(views, label, parts, mirror_average=bool(mirror) and bed.mirrors(label))
+            res = bed.predict(views, label, parts, mirror_average=bool(mirror))
         except UsageError as exc:
             raise gr.Error(one_line(exc)) from None
         downloads = [str(res.files[k]) for k in ("step", "iges", "obj", "quads")]

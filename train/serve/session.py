@@ -124,7 +124,10 @@ class ServeSession:
         }
         self.out = Path(out)
         self.units = units
-        self._mirrored: dict[str, TrainedRun] = {}  # label -> the run through MirrorAverage, made on first use
+        # label -> the run through MirrorAverage, for templates that mirror (made once: the check is not free)
+        self._mirrored: dict[str, TrainedRun] = {
+            label: mirror_averaged(run) for label, run in self.runs.items() if param_mirror(run.template) is not None
+        }
 
     @property
     def labels(self) -> list[str]:
@@ -139,7 +142,8 @@ class ServeSession:
 
     def mirrors(self, label: str | None = None) -> bool:
         """Whether the checkpoint's template mirrors its parameters (the page's mirror-average toggle)."""
-        return param_mirror(self.run(label).template) is not None
+        self.run(label)  # an unknown label is an error naming the loaded ones
+        return (label or self.labels[0]) in self._mirrored
 
     def parts(self, label: str | None = None) -> list[str]:
         """The optional parts of the checkpoint's template (the page's toggles)."""
@@ -159,10 +163,7 @@ class ServeSession:
             raise UsageError("no drawing: draw on the sketchpad or upload one or more views")
         run = self.run(label)
         if mirror_average:
-            key = label or self.labels[0]
-            if key not in self._mirrored:
-                self._mirrored[key] = mirror_averaged(run)
-            run = self._mirrored[key]
+            run = self._mirrored.get(label or self.labels[0]) or mirror_averaged(run)  # the latter refuses by name
         self.out.mkdir(parents=True, exist_ok=True)
         folder = Path(tempfile.mkdtemp(prefix=time.strftime("%Y%m%d-%H%M%S-"), dir=self.out))
         try:
