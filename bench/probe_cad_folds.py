@@ -14,6 +14,7 @@ Usage: .venv/bin/python bench/probe_cad_folds.py --checkpoint RUN/best.pt --data
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 from pathlib import Path
 
@@ -21,67 +22,60 @@ import numpy as np
 import torch
 
 from train.data import DataSettings, make_loader
-from train.export.bicubic import coons_to_bezier
-from train.export.kernel_check import kernel_verdict
-from train.export.units import CadUnits
+from train.evaluate import cad_verdicts
 from train.fit import load_run
 from train.geometry.intersections import count_intersecting_pairs
 from train.geometry.patch_pairs import collision_pairs
 from train.objective import Objective
 
 
+def _rows(run, objective: Objective, dataset: str, split: str, grids: tuple[int, ...]):
+    """One row per test prediction, in shard order."""
+    s, template = run.settings, run.template
+    labels = template.patch_labels or ["?"] * template.num_patches
+    touching = {tuple(p) for p in objective.pairs.pairs[objective.pairs.partial_pairs()].tolist()}
+    counted = {g: collision_pairs(template, grid=g) for g in grids}
+    data = DataSettings(eval_views=1, n_points=s.n_points, image_size=s.image_size)
+    for batch in make_loader(dataset, s.category, split, data, 0, 8, train=False):
+        params = run.model(batch["images"], batch["view_mask"])
+        mask = objective.patch_mask(batch["meta"], params.device)
+        patches = template.patches_from_params(params.double())
+        for b, verdict in enumerate(cad_verdicts(objective, params, batch["meta"])):
+            present = torch.ones(len(patches[b]), dtype=torch.bool) if mask is None else mask[b]
+            ids = present.nonzero().squeeze(1).tolist()  # the verdict counts present patches only
+            named = {tuple(sorted((ids[i], ids[j]))) for i, j in verdict.patch_pairs}
+            yield {
+                "key": batch["key"][b],
+                "kernel_pairs": len(named),
+                "sharing_a_boundary": len(named & touching),  # pairs that share a curve or a corner
+                "folded_patches": len(verdict.folded_patches),
+                "named_parts": sorted({"/".join(sorted((labels[i], labels[j]))) for i, j in named}),
+                "crossing_count": {
+                    str(g): count_intersecting_pairs(patches[b], pairs, present) for g, pairs in counted.items()
+                },
+            }
+
+
 @torch.no_grad()
 def cad_folds(checkpoint: str, dataset: str, split: str = "test", shapes: int = 16, grids=(8, 16)) -> dict:
     run = load_run(checkpoint)
-    s, template = run.settings, run.template
-    objective = Objective(template, s.n_points)
-    touching = {
-        tuple(p) for p in objective.pairs.pairs[objective.pairs.partial_pairs()].tolist()
-    }  # pairs that share a curve or a corner
-    labels = template.patch_labels or ["?"] * template.num_patches
-    counted = {g: collision_pairs(template, grid=g) for g in grids}
-    data = DataSettings(eval_views=1, n_points=s.n_points, image_size=s.image_size)
-    rows = []
-    for batch in make_loader(dataset, s.category, split, data, 0, 8, train=False):
-        params = run.model(batch["images"], batch["view_mask"]).double()
-        mask = objective.patch_mask(batch["meta"], params.device)
-        for b, patches in enumerate(template.patches_from_params(params)):
-            present = torch.ones(len(patches), dtype=torch.bool) if mask is None else mask[b]
-            ids = present.nonzero().squeeze(1).tolist()
-            verdict = kernel_verdict(coons_to_bezier(patches[present].numpy()) * CadUnits().mm)
-            named = {tuple(sorted((ids[i], ids[j]))) for i, j in verdict.patch_pairs}
-            rows.append(
-                {
-                    "key": batch["key"][b],
-                    "kernel_pairs": len(named),
-                    "sharing_a_boundary": len(named & touching),
-                    "folded_patches": len(verdict.folded_patches),
-                    "named_parts": sorted({"/".join(sorted((labels[i], labels[j]))) for i, j in named}),
-                    "crossing_count": {
-                        str(g): count_intersecting_pairs(patches, pairs, present) for g, pairs in counted.items()
-                    },
-                }
-            )
-            if len(rows) == shapes:
-                break
-        if len(rows) == shapes:
-            break
+    objective = Objective(run.template, run.settings.n_points)
+    rows = list(itertools.islice(_rows(run, objective, dataset, split, tuple(grids)), shapes))
     parts = sorted({name for r in rows for name in r["named_parts"]})
+    named = sum(r["kernel_pairs"] for r in rows)
     summary = {
-        "named_parts": {name: sum(name in r["named_parts"] for r in rows) for name in parts},
-        "kernel_pairs": float(np.median([r["kernel_pairs"] for r in rows])),
-        "sharing_a_boundary": float(
-            sum(r["sharing_a_boundary"] for r in rows) / max(1, sum(r["kernel_pairs"] for r in rows))
-        ),
-        "folded_patches": float(np.median([r["folded_patches"] for r in rows])),
-        "crossing_count": {str(g): float(np.median([r["crossing_count"][str(g)] for r in rows])) for g in grids},
+        "share_of_pairs_sharing_a_boundary": sum(r["sharing_a_boundary"] for r in rows) / max(1, named),
+        "predictions_naming_each_part_pair": {name: sum(name in r["named_parts"] for r in rows) for name in parts},
+        "median_kernel_pairs": float(np.median([r["kernel_pairs"] for r in rows])),
+        "median_folded_patches": float(np.median([r["folded_patches"] for r in rows])),
+        "median_crossing_count": {str(g): float(np.median([r["crossing_count"][str(g)] for r in rows])) for g in grids},
     }
     return {
         "checkpoint": checkpoint,
         "dataset": dataset,
         "split": split,
         "shapes": len(rows),
-        "median": summary,
+        "summary": summary,
         "rows": rows,
     }
 
@@ -100,7 +94,7 @@ def main() -> None:
     text = json.dumps(res, indent=1)
     if a.out:
         Path(a.out).write_text(text + "\n")
-    print(json.dumps(res["median"], indent=1))
+    print(json.dumps(res["summary"], indent=1))
 
 
 if __name__ == "__main__":
