@@ -1,5 +1,7 @@
 """Exact nearest neighbours: the hashed grid (train.grid_nn) against scipy's k-d tree."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -135,3 +137,33 @@ def test_far_candidate_does_not_overflow_the_box() -> None:
     r = np.array([[[0.0, 0, 0], [1e8, 1e8, 1e8], [1e8 + 1, 1e8, 1e8]]])
     q = np.array([[[1.0, 0, 0], [1e8 + 0.9, 1e8, 1e8], [2.0, 0, 0]]])
     np.testing.assert_array_equal(grid_nearest(q, r), [[0, 2, 0]])
+
+
+@pytest.mark.parametrize("dim", [3, 6])
+def test_the_fused_kernels_expression_finds_the_nearest_point(dim: int) -> None:
+    q, r = RNG.normal(size=(2, 400, dim)), RNG.normal(size=(2, 300, dim))
+    got = nn_search.squared_distance_argmin(torch.from_numpy(q), torch.from_numpy(r)).numpy()
+    assert np.array_equal(got, kdtree(q, r))
+
+
+def test_without_a_compiler_the_gpu_search_falls_back_to_cdist(monkeypatch) -> None:
+    def broken():
+        raise RuntimeError("no backend")
+
+    monkeypatch.setattr(nn_search, "_compiled_argmin", broken)
+    monkeypatch.setattr(nn_search, "_FUSED_BROKEN", [])
+    q, r = torch.rand(2, 50, 3), torch.rand(2, 40, 3)
+    with pytest.warns(UserWarning, match="fused nearest-neighbour kernel unavailable .*no backend.*using cdist"):
+        first = nn_search.fused_nearest(q, r)
+    assert torch.equal(first, nn_search.device_nearest(q, r))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said once: later calls go straight to cdist
+        assert torch.equal(nn_search.fused_nearest(q, r), first)
+
+
+@pytest.mark.slow
+def test_the_compiled_kernel_equals_its_expression() -> None:
+    """torch.compile's fused reduction (inductor's C++ backend here, Triton on a GPU)."""
+    q, r = torch.rand(2, 700, 3), torch.rand(2, 900, 3)
+    assert torch.equal(nn_search.fused_nearest(q, r), nn_search.squared_distance_argmin(q, r))
+    assert not nn_search._FUSED_BROKEN

@@ -22,7 +22,6 @@ from typing import Any, Iterator
 import cv2
 import numpy as np
 import torch
-import webdataset as wds
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from pipeline.core.errors import ModelError
@@ -38,6 +37,7 @@ from pipeline.core.seeding import rng_for
 from pipeline.core.settings_io import setting
 from train.augmentation import Jitter, jitter_image
 from train.errors import UsageError
+from train.shard_reader import SampleSpan, index_shard, read_samples
 from train.sketch_input import Framing, measure_framing
 from train.templates import FreePoint, Template
 
@@ -351,6 +351,7 @@ class ShardStream(IterableDataset):
         super().__init__()
         self.urls, self.settings, self.seed, self.train = list(urls), settings, seed, train
         self.rank, self.world, self.flip_ok, self.mirror = rank, world, flip_ok, mirror
+        self._spans: dict[str, list[SampleSpan]] = {}  # per worker process: filled on its first epoch
 
     def _slot(self) -> tuple[int, int]:
         info = get_worker_info()
@@ -358,17 +359,23 @@ class ShardStream(IterableDataset):
         return self.rank * workers + worker, self.world * workers
 
     def _raw(self, urls: list[str], slot: int, n_slots: int) -> Iterator[dict]:
-        """This slot's raw samples of one pass over urls."""
+        """This slot's raw samples of one pass over urls: its own shards, or, with fewer shards
+        than slots, every n_slots-th sample of all of them (only those are read)."""
         if len(urls) >= n_slots:
             mine, every = urls[slot::n_slots], 1
         else:
             mine, every = urls, n_slots
         i = 0
         for url in mine:  # one shard at a time, so a read error can name its shard
-            for raw in _shard_samples(url):
-                if every == 1 or i % every == slot:
-                    yield raw
-                i += 1
+            spans = self._index(url)
+            yield from _shard_samples(url, [s for k, s in enumerate(spans, i) if k % every == slot % every])
+            i += len(spans)
+
+    def _index(self, url: str) -> list[SampleSpan]:
+        """The shard's samples (kept: later epochs read them without walking the tar again)."""
+        if url not in self._spans:
+            self._spans[url] = _shard_index(url)
+        return self._spans[url]
 
     def __iter__(self) -> Iterator[dict]:
         slot, n_slots = self._slot()
@@ -411,15 +418,27 @@ class ShardError(UsageError):
     """A shard that cannot be read to its end (truncated, corrupt)."""
 
 
-def _shard_samples(url: str) -> Iterator[dict]:
-    """The raw samples of one shard; a truncated or corrupt shard raises UsageError naming it."""
-    stream = wds.WebDataset([url], shardshuffle=False, nodesplitter=None, workersplitter=None, empty_check=False)
+def _shard_samples(url: str, spans: list[SampleSpan] | None = None) -> Iterator[dict]:
+    """The raw samples of one shard (those of ``spans`` from ``_shard_index``, else all); a
+    truncated or corrupt shard raises ShardError naming it."""
     try:
-        yield from stream
-    except Exception as exc:  # noqa: BLE001 - tarfile, OSError, webdataset: all mean "cannot read it"
-        # webdataset appends the stream and URL to the error's args and " @ <stream>" to its text
-        reason = str(exc.args[0] if exc.args else "").split(" @ ")[0] or "no detail"
-        raise ShardError(f"{url}: unreadable shard ({type(exc).__name__}: {reason})") from None
+        yield from read_samples(url, _shard_index(url) if spans is None else spans)
+    except ShardError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - tarfile, OSError: all mean "cannot read it"
+        raise ShardError(_unreadable(url, exc)) from None
+
+
+def _shard_index(url: str) -> list[SampleSpan]:
+    """``index_shard``, a truncated or corrupt shard raising ShardError naming it."""
+    try:
+        return index_shard(url)
+    except Exception as exc:  # noqa: BLE001 - tarfile, OSError: all mean "cannot read it"
+        raise ShardError(_unreadable(url, exc)) from None
+
+
+def _unreadable(url: str, exc: Exception) -> str:
+    return f"{url}: unreadable shard ({type(exc).__name__}: {exc.args[0] if exc.args else 'no detail'})"
 
 
 def make_loader(

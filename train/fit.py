@@ -38,6 +38,7 @@ from train.losses.total import TERMS, weighted_sum
 from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
+from train.precision import PRECISIONS, network_autocast, place_network
 from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
@@ -88,6 +89,11 @@ class FitSettings:
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
     device: str | None = setting(None, "default: cuda when present, else cpu")
+    precision: str = setting(
+        "fp32",
+        "fp32, or bf16: on a GPU the network runs in bfloat16 autocast with channels-last "
+        "convolutions (the loss stays fp32; BENCHMARKS.md compares the two); a CPU run is fp32",
+    )
     match_normals: float | None = setting(
         None,
         "normal-aware matching in training: pair points by (xyz, λ·normal), λ = this "
@@ -151,6 +157,7 @@ class FitSettings:
             _is_number(self.output_lr_scale) and 0 < self.output_lr_scale < math.inf,
             "a factor > 0",
         )
+        _require(self, "precision", self.precision in PRECISIONS, f"one of {', '.join(PRECISIONS)}")
         _require(self, "lr_schedule", self.lr_schedule in LR_SCHEDULES, f"one of {', '.join(LR_SCHEDULES)}")
         _require(
             self,
@@ -530,6 +537,7 @@ def train_step(
     contrast: float = 0.0,
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
+    precision: str = "fp32",
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -544,11 +552,14 @@ def train_step(
     device instead and ``guard.check()`` raises later, naming the step.
 
     Host round trips: none on a GPU but the collision term's culling (``train.losses.collision``);
-    the loss and terms come back as device tensors (``fit`` reads them every ``--log-every``)."""
+    the loss and terms come back as device tensors (``fit`` reads them every ``--log-every``).
+    ``precision`` "bf16" runs the network (not the loss) in bfloat16 autocast on a GPU."""
     # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
     # on a GPU run), and the view mask stays on the host: the encoder reads it there
     pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
-    out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
+    with network_autocast(device, precision):
+        out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
+    out = {k: v.float() for k, v in out.items()}  # the loss's geometry stays fp32
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
     if contrast > 0:
@@ -610,7 +621,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     torch.manual_seed(settings.seed)  # same initial weights on every rank
     model = SketchToPatches(
         template.initial_params(), encoder_width=settings.encoder_width, basis=basis, input_blur=settings.input_blur
-    ).to(info.device)
+    )
+    model = place_network(model, info.device, settings.precision)
     trainee = TrainingNet(model)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:
@@ -698,6 +710,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.contrast,
                 settings.clip_grad,
                 guard,
+                settings.precision,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()
