@@ -42,6 +42,8 @@ TRAIN_LEVELS = {
     "train.plots": 0,
     "train.weight_average": 0,
     "train.sketch_input": 0,
+    "train.shard_reader": 0,  # a shard's samples, only those a loader slot takes
+    "train.precision": 0,  # the network's arithmetic on a GPU (fp32 or bf16)
     "train.geometry": 1,
     "train.export": 2,  # CAD files and mesh checks of patch arrays
     "train.templates": 3,  # the runtime format; train.templates.authoring builds templates offline

@@ -174,7 +174,7 @@ class FitSettings:
     def identity(self) -> dict:
         """Settings that define the run: a resume must match them (steps and logging may change)."""
         d = dataclasses.asdict(self)
-        for k in ("steps", "checkpoint_every", "log_every", "val_every", "device", "workers", "out"):
+        for k in ("steps", "checkpoint_every", "log_every", "val_every", "device", "workers", "out", "precision"):
             d.pop(k)
         return d
 
