@@ -11,6 +11,7 @@ the network's or the loss's.
 
 Usage: OMP_NUM_THREADS=1 .venv/bin/python bench/probe_fit_kernel.py --dataset DS --category CAT
        [--template CAT|PATH] [--shapes 16] [--steps 300] [--collision 1.0] [--collision-grid 8]
+       [--collision-truncate 1]
        [--out bench/results/fit_kernel_CAT.json]
 """
 
@@ -43,9 +44,16 @@ def kernel_of_fits(
     collision: float = 1.0,
     collision_grid: int = 8,
     n_points: int = 4000,
+    collision_truncate: int = 1,
 ) -> dict:
     template = load_template(template_name)
-    objective = Objective(template, n_points, match_normals=template.match_normals, collision_grid=collision_grid)
+    objective = Objective(
+        template,
+        n_points,
+        match_normals=template.match_normals,
+        collision_grid=collision_grid,
+        collision_truncate=collision_truncate,
+    )
     counted = Objective(template, n_points)  # evaluate's crossing count: always the 8 x 8 grid
     batch = _batch(dataset, category, "test", n_points, shapes)
     t0 = time.process_time()
@@ -88,6 +96,7 @@ def kernel_of_fits(
         "steps": steps,
         "collision": collision,
         "collision_grid": collision_grid,
+        "collision_truncate": collision_truncate,
         "fit_cpu_s": round(fit_s, 1),
         "fitted_chamfer": chamfer,
         "kernel_clean": sum(r["kernel_clean"] for r in rows),
@@ -105,11 +114,19 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--collision", type=float, default=1.0, help="the collision term's weight in the fit")
     p.add_argument("--collision-grid", type=int, default=8, help="the collision term's triangulation grid")
+    p.add_argument("--collision-truncate", type=int, default=1, help="grid rows left out along shared seams (0: none)")
     p.add_argument("--out", default=None)
     a = p.parse_args()
     torch.set_num_threads(1)
     res = kernel_of_fits(
-        a.dataset, a.category, a.template or a.category, a.shapes, a.steps, a.collision, a.collision_grid
+        a.dataset,
+        a.category,
+        a.template or a.category,
+        a.shapes,
+        a.steps,
+        a.collision,
+        a.collision_grid,
+        collision_truncate=a.collision_truncate,
     )
     print(json.dumps({k: v for k, v in res.items() if k != "fits"}, indent=1))
     if a.out:

@@ -19,6 +19,7 @@ from train.losses import (
     total_loss,
 )
 from train.nn_search import nearest_distances
+from train.objective import Objective
 from train.templates import sphere24, sphere54
 from train.templates.template import Curve, FreePoint, Patch, Template
 
@@ -260,6 +261,19 @@ def test_patch_mask_removes_absent_parts():
     _, with_mask = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3), patch_mask=keep)
     _, without = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3))
     assert with_mask["chamfer"].item() < 1e-9 < without["chamfer"].item()
+
+
+def test_collision_without_truncation_keeps_the_seam_band_and_still_ignores_the_shared_edge():
+    pts = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (0, 1, 1)]  # folded at 90 degrees
+    t = _two_patch_template(pts)
+    full = collision_pairs(t, grid=8, truncate=0)
+    # only the two shared corner vertices are left out; training's default leaves out a row
+    assert int((~full.keep_i).sum()) == int((~full.keep_j).sum()) == 2
+    assert int((~Objective(t, 200, collision_truncate=0).pairs.keep_i).sum()) == 2
+    assert int((~Objective(t, 200).pairs.keep_i).sum()) > 8
+    # the grids share their vertices along the common curve: touching there is not crossing
+    patches = t.patches_from_params(t.initial_params(torch.float64)[None])
+    assert collision_loss(patches, full).item() == 0.0
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

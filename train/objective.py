@@ -49,6 +49,7 @@ class Objective:
         collision_grid: int = 8,
         match_normals: float = 0.0,
         leave_out: tuple[str, ...] = (),
+        collision_truncate: int = 1,
     ):
         self.template = template
         unknown = sorted(set(leave_out) - set(template.patch_labels))
@@ -61,7 +62,8 @@ class Objective:
         self.keep = torch.tensor([lab not in leave_out for lab in template.patch_labels], dtype=torch.bool)
         self.match_normals = match_normals  # λ of normal-aware matching in training (metrics: plain)
         self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
-        self.pairs = collision_pairs(template, grid=collision_grid)
+        # grid rows left out along a seam two patches share (0: only the shared corners; crossings up to the seam count)
+        self.pairs = collision_pairs(template, grid=collision_grid, truncate=collision_truncate)
         self.sym = template.symmetry_pairs()
         self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
         with torch.no_grad():
