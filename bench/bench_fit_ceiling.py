@@ -42,13 +42,14 @@ def _plain_chamfer(objective: Objective, params: torch.Tensor, batch: dict) -> t
 
 
 def fit_to_targets(
-    objective: Objective, batch: dict, steps: int, lr: float = 0.01, collision: float = 0.0
+    objective: Objective, batch: dict, steps: int, lr: float = 0.01, collision: float = 0.0, fold: float = 0.0
 ) -> torch.Tensor:
     """The template fitted to each target of ``batch`` (B, D): the fit stage's fit
     (``train.template_fit.fit_batch``), the collision term at weight ``collision`` (default off,
-    for speed: the ceiling is about L_Ch)."""
+    for speed: the ceiling is about L_Ch) and the fold term at ``fold``."""
     settings = PatchFitSettings(steps=steps, lr=lr, collision=collision)
-    return fit_batch(objective, batch, settings, seed=0, category=objective.template.name or "")
+    extra = {"fold": fold} if fold else None
+    return fit_batch(objective, batch, settings, seed=0, category=objective.template.name or "", weights=extra)
 
 
 def fit_ceiling(

@@ -11,7 +11,7 @@ the network's or the loss's.
 
 Usage: OMP_NUM_THREADS=1 .venv/bin/python bench/probe_fit_kernel.py --dataset DS --category CAT
        [--template CAT|PATH] [--shapes 16] [--steps 300] [--collision 1.0] [--collision-grid 8]
-       [--collision-truncate 1]
+       [--collision-truncate 1] [--fold 0]
        [--out bench/results/fit_kernel_CAT.json]
 """
 
@@ -45,6 +45,7 @@ def kernel_of_fits(
     collision_grid: int = 8,
     n_points: int = 4000,
     collision_truncate: int = 1,
+    fold: float = 0.0,
 ) -> dict:
     template = load_template(template_name)
     objective = Objective(
@@ -57,7 +58,7 @@ def kernel_of_fits(
     counted = Objective(template, n_points)  # evaluate's crossing count: always the 8 x 8 grid
     batch = _batch(dataset, category, "test", n_points, shapes)
     t0 = time.process_time()
-    params = fit_to_targets(objective, batch, steps, collision=collision)
+    params = fit_to_targets(objective, batch, steps, collision=collision, fold=fold)
     fit_s = time.process_time() - t0
     adjacent = set(template.adjacency())
     mask = objective.patch_mask(batch["meta"], torch.device("cpu"))
@@ -97,6 +98,7 @@ def kernel_of_fits(
         "collision": collision,
         "collision_grid": collision_grid,
         "collision_truncate": collision_truncate,
+        "fold": fold,
         "fit_cpu_s": round(fit_s, 1),
         "fitted_chamfer": chamfer,
         "kernel_clean": sum(r["kernel_clean"] for r in rows),
@@ -115,6 +117,7 @@ def main() -> None:
     p.add_argument("--collision", type=float, default=1.0, help="the collision term's weight in the fit")
     p.add_argument("--collision-grid", type=int, default=8, help="the collision term's triangulation grid")
     p.add_argument("--collision-truncate", type=int, default=1, help="grid rows left out along shared seams (0: none)")
+    p.add_argument("--fold", type=float, default=0.0, help="the fold term's weight in the fit (0: off)")
     p.add_argument("--out", default=None)
     a = p.parse_args()
     torch.set_num_threads(1)
@@ -127,6 +130,7 @@ def main() -> None:
         a.collision,
         a.collision_grid,
         collision_truncate=a.collision_truncate,
+        fold=a.fold,
     )
     print(json.dumps({k: v for k, v in res.items() if k != "fits"}, indent=1))
     if a.out:

@@ -165,7 +165,7 @@ def test_collision_sees_a_crossing_between_grid_vertices_and_its_gradient_separa
     corners = torch.stack([_square(0.0), _wall(0.37, -0.3, 0.7)])
     patches = patch_from_corners(corners)[None].requires_grad_(True)
     loss = collision_loss(patches, loose)
-    assert loss.item() > 0.05
+    assert loss.item() > 0.02  # about a twentieth of the patch turned over
     (grad,) = torch.autograd.grad(loss.sum(), patches)
     # descent lifts the wall (most of it is above the square) and lowers the square under it
     assert -grad[0, 1, ..., 2].sum() > 0 and -grad[0, 0, ..., 2].sum() < 0
@@ -235,8 +235,9 @@ def test_total_loss_reaches_every_parameter_and_ablation_switches_terms_off():
         collision=collision_pairs(t),
     )
     loss, terms = total_loss(t.patches_from_params(prm), st, target, normals, LossWeights(), **kwargs)
-    assert set(terms) == {"chamfer", "normal", "flat", "collision", "template_normal", "symmetry", "fit"}
+    assert set(terms) == {"chamfer", "normal", "flat", "collision", "template_normal", "symmetry", "fit", "fold"}
     assert terms["fit"].item() == 0.0  # off by default (and without fit targets)
+    assert terms["fold"].item() == 0.0  # off by default
     assert all(terms[k].item() > 0 for k in ("chamfer", "normal", "flat", "template_normal", "symmetry"))
     weights = LossWeights()
     expected = sum(getattr(weights, k) * v for k, v in terms.items())
@@ -261,6 +262,39 @@ def test_patch_mask_removes_absent_parts():
     _, with_mask = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3), patch_mask=keep)
     _, without = total_loss(p, st, target, ev.normals[:, :12].reshape(1, -1, 3))
     assert with_mask["chamfer"].item() < 1e-9 < without["chamfer"].item()
+
+
+def _folding_square(inner_x: tuple[float, float] = (1 / 3, 2 / 3), lift: float = 0.0) -> torch.Tensor:
+    """The unit square as one Coons patch (1, 1, 4, 4, 3), its bottom and top curves' inner
+    control points at x = ``inner_x`` (running back past each other: the patch folds) and
+    z = ``lift``."""
+    corners = torch.tensor([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=torch.float64)
+    p = patch_from_corners(corners).clone()
+    p[0, 1:3, 0] = torch.tensor(inner_x, dtype=torch.float64)  # bottom, P00 -> P10
+    p[2, 1:3, 0] = torch.tensor(inner_x[::-1], dtype=torch.float64)  # top, P11 -> P01
+    p[0, 1:3, 2] = p[2, 1:3, 2] = lift
+    return p[None, None]
+
+
+def test_fold_sees_a_patch_folded_over_itself_and_its_gradient_unfolds_it():
+    from train.losses.regularizers import fold_loss
+
+    st = uniform_params(1, 400, torch.Generator().manual_seed(1), dtype=torch.float64)
+    flat = evaluate_patches(_folding_square(), st)
+    template_normals = flat.normals[0]
+    assert fold_loss(flat.normals, flat.jacobian, template_normals).item() == 0.0
+    x = _folding_square((1.2, -0.2), lift=0.2)  # x(s) runs back in the middle of a curved patch
+    first = None
+    for _ in range(30):
+        x.requires_grad_(True)
+        ev = evaluate_patches(x, st)
+        loss = fold_loss(ev.normals, ev.jacobian, template_normals)
+        first = loss.item() if first is None else first
+        (grad,) = torch.autograd.grad(loss, x)
+        x = (x - 0.05 * grad).detach()
+    ev = evaluate_patches(x, st)
+    assert first > 0.1  # a fifth of the patch turned over
+    assert fold_loss(ev.normals, ev.jacobian, template_normals).item() < 0.01  # descent unfolds it
 
 
 def test_collision_without_truncation_keeps_the_seam_band_and_still_ignores_the_shared_edge():

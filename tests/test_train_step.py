@@ -156,6 +156,8 @@ def measure(name: str, **kw) -> dict[str, float]:
     loss, terms = _step(case, **kw)
     out = {"loss": float(loss.detach())}
     for k, v in terms.items():
+        if k == "fold":  # off in both cases (weight 0: zeros); the reference predates the term
+            continue
         for i, x in enumerate(v.detach().reshape(-1).tolist()):
             out[f"{k}[{i}]"] = x
     for part in ("model.encoder", "model.hidden", "model.out"):

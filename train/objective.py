@@ -224,7 +224,7 @@ class Objective:
         st = st.to(params.device, non_blocking=True)
         on = self.resident(params.device)
         template_normals = None
-        if weights.template_normal:
+        if weights.template_normal or weights.fold:
             template_normals = evaluate_patches(on.template_patches, st).normals[0]
         patches, control_points = self.template.patches_and_points(params)
         return loss_terms(

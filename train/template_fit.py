@@ -15,11 +15,19 @@ from train.losses.weights import template_weights
 from train.objective import Objective
 
 
-def fit_batch(objective: Objective, batch: dict, settings: PatchFitSettings, seed: int, category: str) -> torch.Tensor:
+def fit_batch(
+    objective: Objective,
+    batch: dict,
+    settings: PatchFitSettings,
+    seed: int,
+    category: str,
+    weights: dict[str, float] | None = None,
+) -> torch.Tensor:
     """The template's parameters (B, D) fitted to each target of ``batch`` (the loader's layout):
-    Adam from the template, the training loss with the collision term at ``settings.collision``."""
+    Adam from the template, the training loss with the collision term at ``settings.collision``
+    (``weights``: other loss weights on top, e.g. a probe's fold term)."""
     template = objective.template
-    weights = template_weights(template.regularizers, {"collision": settings.collision})
+    weights = template_weights(template.regularizers, {**(weights or {}), "collision": settings.collision})
     params = template.initial_params()[None].expand(len(batch["points"]), -1).clone().requires_grad_(True)
     opt = torch.optim.Adam([params], lr=settings.lr)
     gen = torch.Generator().manual_seed(derive_seed(seed, "fit", category) % 2**63)

@@ -1,4 +1,5 @@
-"""Patch flatness, template normals, and global symmetry (the paper's L_flat, L_template, L_sym)."""
+"""Patch flatness, template normals, and global symmetry (the paper's L_flat, L_template, L_sym),
+and a fold term of our own."""
 
 from __future__ import annotations
 
@@ -53,3 +54,32 @@ def symmetry_loss(points: Tensor, pairs: Tensor, plane_x: float = 0.0, valid: Te
         return sq.mean(-1)
     w = valid.to(sq.dtype)
     return (sq * w).sum(-1) / w.sum(-1).clamp_min(1.0)
+
+
+# a template sample takes part in the fold term where its normal is within about 73 degrees of its
+# patch's mean normal: strongly curved corners of the template may turn further on their own
+_FOLD_GATE = 0.3
+
+
+def fold_loss(normals: Tensor, jacobian: Tensor, template_normals: Tensor, valid: Tensor | None = None) -> Tensor:
+    """Share of a patch folded back over itself, per batch item ``(B,)``: mean over samples of
+    ``relu(−n · n̄)``, where ``n̄`` is the patch's own area-weighted mean normal (held fixed), on
+    the samples where the template's normal faces its own patch's mean way.
+
+    Not in the paper. A patch that folds through itself (what the CAD kernel rejects) has a
+    Jacobian that nearly vanishes along the fold and a normal turned past 90 degrees beyond it;
+    the Chamfer and template-normal terms weight by |J| and hardly see the place
+    (BENCHMARKS.md, "Where the CAD kernel rejects the predictions"). A fold that stays in one
+    plane has no gradient here (its normal flips without turning); folds of curved patches, the
+    predictions' kind, do. ``normals (B, P, S, 3)``,
+    ``jacobian (B, P, S)``, ``template_normals (P, S, 3)`` at the same samples."""
+    mean = (normals * jacobian[..., None]).sum(-2).detach()
+    mean = mean / mean.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    turned = torch.relu(-(normals * mean.unsqueeze(-2)).sum(-1))  # (B, P, S)
+    t_mean = template_normals.mean(-2)
+    t_mean = t_mean / t_mean.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    gate = ((template_normals * t_mean.unsqueeze(-2)).sum(-1) > _FOLD_GATE).to(turned.dtype)  # (P, S)
+    turned = turned * gate
+    if valid is not None:
+        turned = turned * valid.expand(turned.shape).to(turned.dtype)
+    return turned.mean((-2, -1))

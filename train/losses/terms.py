@@ -23,7 +23,7 @@ from train.geometry.patch_pairs import CollisionPairs
 from train.losses.chamfer import Groups, Matches, chamfer_loss, match_points, normal_alignment_loss
 from train.losses.collision import collision_loss
 from train.losses.fit_target import fit_target_loss
-from train.losses.regularizers import flatness_loss, symmetry_loss, template_normal_loss
+from train.losses.regularizers import flatness_loss, fold_loss, symmetry_loss, template_normal_loss
 
 
 @dataclass
@@ -92,6 +92,12 @@ def _template_normal(x: TermInputs) -> Tensor | None:
     return template_normal_loss(x.ev.normals, x.template_normals.to(x.patches.dtype), x.ev.jacobian, x.valid)
 
 
+def _fold(x: TermInputs) -> Tensor | None:
+    if x.template_normals is None:
+        return None
+    return fold_loss(x.ev.normals, x.ev.jacobian, x.template_normals.to(x.patches.dtype), x.valid)
+
+
 def _symmetry(x: TermInputs) -> Tensor | None:
     if x.control_points is None or x.symmetry_pairs is None:
         return None
@@ -112,6 +118,7 @@ LOSS_TERMS: tuple[LossTerm, ...] = (
     LossTerm("template_normal", _template_normal, regularizer=True),
     LossTerm("symmetry", _symmetry, regularizer=True),
     LossTerm("fit", _fit, ablation=False),  # off by default (weight 0): --w-fit, a fitted dataset
+    LossTerm("fold", _fold, ablation=False),  # off by default (weight 0): --w-fold, not in the paper
 )
 
 

@@ -20,6 +20,7 @@ class LossWeights:
     template_normal: float = 1e-4
     symmetry: float = 1.0
     fit: float = 0.0  # not in the paper: pulls the control points to the fit stage's (--fit-patches)
+    fold: float = 0.0  # not in the paper: patches folded back over themselves (the CAD kernel's faults)
 
 
 def only_term(name: str, weights: LossWeights | None = None) -> LossWeights:
