@@ -37,16 +37,9 @@ from train.templates import load_template
 VARIANTS = {"fp32-cdist": ("fp32", False), "fp32": ("fp32", True), "bf16": ("bf16", True)}
 
 
-@contextlib.contextmanager
-def search_kernel(fused: bool):
+def search_kernel(fused: bool) -> contextlib.AbstractContextManager:
     """The GPU nearest-point search as a variant asks: the fused kernel, or main's cdist before it."""
-    kept = nn_search.fused_nearest
-    if not fused:
-        nn_search.fused_nearest = lambda q, r: nn_search.device_nearest(q, r)
-    try:
-        yield
-    finally:
-        nn_search.fused_nearest = kept
+    return nn_search.forced_search("fused" if fused else "cdist")
 
 
 class Setup:

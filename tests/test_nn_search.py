@@ -148,18 +148,38 @@ def test_the_fused_kernels_expression_finds_the_nearest_point(dim: int) -> None:
 
 
 def test_without_a_compiler_the_gpu_search_falls_back_to_cdist(monkeypatch) -> None:
-    def broken():
+    def broken(*args, **kwargs):
         raise RuntimeError("no backend")
 
-    monkeypatch.setattr(nn_search, "_compiled_argmin", broken)
-    monkeypatch.setattr(nn_search, "_FUSED_BROKEN", [])
+    monkeypatch.setattr(nn_search, "COMPILED_SEARCH", nn_search.CompiledSearch(compile_fn=broken))
     q, r = torch.rand(2, 50, 3), torch.rand(2, 40, 3)
     with pytest.warns(UserWarning, match="fused nearest-neighbour kernel unavailable .*no backend.*using cdist"):
         first = nn_search.fused_nearest(q, r)
     assert torch.equal(first, nn_search.device_nearest(q, r))
+    assert isinstance(nn_search.COMPILED_SEARCH.failure, RuntimeError)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # said once: later calls go straight to cdist
         assert torch.equal(nn_search.fused_nearest(q, r), first)
+
+
+def test_a_forced_search_holds_inside_its_block_only(monkeypatch) -> None:
+    taken = []
+    monkeypatch.setattr(
+        nn_search, "fused_nearest", lambda q, r: taken.append("fused") or nn_search.device_nearest(q, r)
+    )
+    monkeypatch.setattr(nn_search, "grid_nearest", lambda q, r: taken.append("grid") or kdtree(q, r))
+    q, r = torch.rand(1, 30, 3), torch.rand(1, 20, 3)
+    expected = torch.cdist(q, r).argmin(-1)
+    with nn_search.forced_search("fused"):
+        assert torch.equal(nn_search.nearest_indices(q, r), expected)
+        with nn_search.forced_search("cdist"):
+            assert torch.equal(nn_search.nearest_indices(q, r), expected)
+        assert torch.equal(nn_search.nearest_indices(q, r), expected)
+    assert torch.equal(nn_search.nearest_indices(q, r), expected)
+    assert taken == ["fused", "fused", "grid"]
+    with pytest.raises(ValueError, match="unknown nearest-point search 'kd'"):
+        with nn_search.forced_search("kd"):
+            pass
 
 
 @pytest.mark.slow
@@ -170,4 +190,4 @@ def test_the_compiled_kernel_equals_its_expression() -> None:
     """torch.compile's fused reduction (inductor's C++ backend here, Triton on a GPU)."""
     q, r = torch.rand(2, 700, 3), torch.rand(2, 900, 3)
     assert torch.equal(nn_search.fused_nearest(q, r), nn_search.squared_distance_argmin(q, r))
-    assert not nn_search._FUSED_BROKEN
+    assert nn_search.COMPILED_SEARCH.failure is None

@@ -34,14 +34,13 @@ import torch
 from torch.utils import _pytree as pytree
 from torch.utils._python_dispatch import TorchDispatchMode
 
-import train.losses.chamfer
 from pipeline.core.schema import POINT_PART_NAMES, PRESENT_PARTS
 from train.fit import Diverged, DivergenceGuard, make_optimizer, train_step
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.regularizers import flatness_loss
 from train.losses.weights import LossWeights, template_weights
 from train.model import SketchToPatches, TrainingNet
-from train.nn_search import device_nearest
+from train.nn_search import forced_search
 from train.objective import Objective
 from train.templates import load_template
 
@@ -301,8 +300,8 @@ def test_a_guarded_step_is_the_same_step() -> None:
     assert measure("airplane", guard=DivergenceGuard(CPU)) == measure("airplane")
 
 
-def test_a_guarded_step_that_is_not_finite_leaves_the_weights_and_says_so_later(monkeypatch) -> None:
-    _search_as_on_a_gpu(monkeypatch)  # the CPU's k-d tree refuses NaN points; torch's search does not
+@pytest.mark.usefixtures("search_as_on_a_gpu")  # the CPU's k-d tree refuses NaN points; torch's search does not
+def test_a_guarded_step_that_is_not_finite_leaves_the_weights_and_says_so_later() -> None:
     case = _case("car")
     case["batch"]["points"][0, 0, 0] = float("nan")
     before = [p.detach().clone() for p in case["net"].parameters()]
@@ -358,10 +357,9 @@ ALLOWED_SYNCS: dict[tuple[str, str, str], int] = {
     ("losses/collision.py", "_crossings", "index"): 2,  # the kept edges; the crossings
 }
 # The CPU's own nearest-neighbour search (numba grid, k-d tree) reads the points on the host:
-# the fast path on a CPU, never taken on a GPU (device_nearest runs there).
+# the fast path on a CPU, never taken on a GPU (the fused kernel runs there).
 HOST_SEARCH: dict[tuple[str, str, str], int] = {
-    ("nn_search.py", "nearest_indices", "cpu"): 4,  # query and reference of both searches
-    ("nn_search.py", "nearest_indices", "numpy"): 4,
+    ("nn_search.py", "nearest_indices", "numpy"): 4,  # query and reference of both searches
 }
 
 
@@ -435,27 +433,30 @@ def _read_backs(case: dict, monkeypatch) -> Counter:
     return counter.calls
 
 
-def _search_as_on_a_gpu(monkeypatch) -> None:
-    """Matching as on a GPU (torch's cdist + argmin), so that the rest of the step is seen alone."""
-    monkeypatch.setattr(train.losses.chamfer, "nearest_indices", lambda q, r: device_nearest(q.detach(), r.detach()))
+@pytest.fixture
+def search_as_on_a_gpu():
+    """Matching in torch alone, as on a GPU (cdist + argmin: the fused kernel's fallback, which
+    needs no compiler here), so that the rest of the step is seen alone."""
+    with forced_search("cdist"):
+        yield
 
 
 def _beyond(calls: Counter, allowed: dict) -> dict:
     return {k: n for k, n in calls.items() if n > allowed.get(k, 0)}
 
 
+@pytest.mark.usefixtures("search_as_on_a_gpu")
 @pytest.mark.parametrize("name", ["airplane", "car"])
 def test_the_step_reads_nothing_back_but_the_collision_culling(name: str, monkeypatch) -> None:
-    _search_as_on_a_gpu(monkeypatch)
     calls = _read_backs(_case(name), monkeypatch)
     assert not _beyond(calls, ALLOWED_SYNCS), calls
     if name == "airplane":  # crossing patches: the culling ran to the end
         assert {k[1] for k in calls} == {"_candidates", "_overlapping_cells", "_crossings"}
 
 
+@pytest.mark.usefixtures("search_as_on_a_gpu")
 @pytest.mark.parametrize("name", ["airplane", "car"])
 def test_without_the_collision_term_the_step_reads_nothing_back(name: str, monkeypatch) -> None:
-    _search_as_on_a_gpu(monkeypatch)
     assert _read_backs(_case(name, collision=0.0), monkeypatch) == Counter()
 
 
@@ -463,6 +464,7 @@ def test_on_a_cpu_only_the_host_search_reads_points_back(monkeypatch) -> None:
     assert _read_backs(_case("car", collision=0.0), monkeypatch) == Counter(HOST_SEARCH)
 
 
+@pytest.mark.usefixtures("search_as_on_a_gpu")
 def test_the_counter_sees_a_read_back(monkeypatch) -> None:
     """linalg.solve (its error check reads a flag back) in place of solve_ex is caught where it runs."""
     import train.losses.regularizers as reg
@@ -470,7 +472,6 @@ def test_the_counter_sees_a_read_back(monkeypatch) -> None:
     def solve_ex(a, b):
         return torch.linalg.solve(a, b), None
 
-    _search_as_on_a_gpu(monkeypatch)
     monkeypatch.setattr(reg.torch.linalg, "solve_ex", solve_ex)
     calls = _read_backs(_case("car", collision=0.0), monkeypatch)
     assert calls == Counter({("losses/regularizers.py", "flatness_loss", "_linalg_check_errors"): 1})

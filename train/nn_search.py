@@ -7,14 +7,17 @@ item; on a GPU (any device but the CPU), one fused brute-force kernel on that de
 (``fused_nearest``: torch.compile turns the squared distances and their argmin into one
 reduction, so no query × reference matrix is written to memory), which reads nothing back to
 the host. Distances are then recomputed in torch from the gathered neighbours so gradients flow
-to both point sets.
+to both point sets. ``forced_search`` makes one search answer everywhere inside a block, for
+benchmarks comparing them and tests that want the GPU's path on a CPU.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import warnings
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -23,8 +26,26 @@ from torch import Tensor
 
 from train.grid_nn import grid_nearest
 
+SEARCHES = ("auto", "fused", "cdist")
+_SEARCH = contextvars.ContextVar("nn_search", default="auto")
 
-def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tensor:
+
+@contextlib.contextmanager
+def forced_search(name: str) -> Iterator[None]:
+    """Inside the block every search takes ``name`` on any device: ``"fused"`` (the compiled
+    kernel), ``"cdist"`` (the chunked matrix before it) or ``"auto"`` (the grid or k-d tree on a
+    CPU, the fused kernel elsewhere). For benchmarks that compare them and tests that want the
+    GPU's path on a CPU; training never sets it."""
+    if name not in SEARCHES:
+        raise ValueError(f"unknown nearest-point search {name!r}; one of {', '.join(SEARCHES)}")
+    token = _SEARCH.set(name)
+    try:
+        yield
+    finally:
+        _SEARCH.reset(token)
+
+
+def nearest_indices(query: Tensor, reference: Tensor) -> Tensor:
     """Index of the nearest ``reference`` point for each ``query`` point.
 
     ``query (B, N, D)``, ``reference (B, M, D)`` → ``(B, N)`` int64 on the query's device. Ties
@@ -32,19 +53,23 @@ def nearest_indices(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tens
     path; elsewhere to whichever the k-d tree or argmin picks.
     """
     q, r = query.detach(), reference.detach()
-    if q.device.type != "cpu":  # on the tensors' own device: no copy to the host and back
+    search = _SEARCH.get()
+    if search == "cdist":
+        return device_nearest(q, r)
+    if search == "fused" or q.device.type != "cpu":  # on the tensors' own device: no host round trip
         return fused_nearest(q, r)
-    qn = q.double().cpu().numpy()
-    rn = r.double().cpu().numpy()
+    qn = q.double().numpy()
+    rn = r.double().numpy()
     idx = grid_nearest(qn, rn) if qn.shape[-1] == 3 else None
-    if idx is not None:
-        return torch.from_numpy(idx).to(query.device)
-    return torch.from_numpy(kdtree_nearest(qn, rn)).to(query.device)
+    if idx is None:
+        idx = kdtree_nearest(qn, rn)
+    return torch.from_numpy(idx)
 
 
 def device_nearest(query: Tensor, reference: Tensor, chunk: int = 4096) -> Tensor:
     """``nearest_indices`` in torch alone (chunked ``cdist`` + ``argmin``), on any device: the GPU
-    path (queries per chunk, so the distance matrix stays ``chunk`` × M per item)."""
+    path before ``fused_nearest`` and its fallback (queries per chunk, so the distance matrix stays
+    ``chunk`` × M per item)."""
     out = [torch.cdist(query[:, s : s + chunk], reference).argmin(dim=-1) for s in range(0, query.shape[1], chunk)]
     return torch.cat(out, dim=1)
 
@@ -61,26 +86,39 @@ def squared_distance_argmin(query: Tensor, reference: Tensor) -> Tensor:
     return d.argmin(dim=-1)
 
 
-@functools.cache
-def _compiled_argmin() -> Callable[[Tensor, Tensor], Tensor]:
-    # shapes are fixed through a run (patch samples, target points): one compilation per shape
-    return torch.compile(squared_distance_argmin, dynamic=False, fullgraph=True)
+class CompiledSearch:
+    """``squared_distance_argmin`` through torch.compile, disabled for the rest of the process at
+    its first failure (it then answers ``None``, once with a warning)."""
+
+    def __init__(self, compile_fn: Callable[..., Callable] = torch.compile) -> None:
+        self._compile = compile_fn
+        self.failure: Exception | None = None
+
+    @functools.cached_property
+    def _kernel(self) -> Callable[[Tensor, Tensor], Tensor]:
+        # shapes are fixed through a run (patch samples, target points): one compilation per shape
+        return self._compile(squared_distance_argmin, dynamic=False, fullgraph=True)
+
+    def __call__(self, query: Tensor, reference: Tensor) -> Tensor | None:
+        if self.failure is not None:
+            return None
+        try:
+            return self._kernel(query.contiguous(), reference.contiguous())
+        except Exception as exc:  # noqa: BLE001 - any compiler failure: the plain path still answers
+            self.failure = exc
+            warnings.warn(f"fused nearest-neighbour kernel unavailable ({type(exc).__name__}: {exc}); using cdist")
+            return None
+
+
+COMPILED_SEARCH = CompiledSearch()
 
 
 def fused_nearest(query: Tensor, reference: Tensor) -> Tensor:
     """``nearest_indices`` on a GPU: ``squared_distance_argmin`` compiled to one kernel (exact
     squared distances, unlike cdist's matrix-product form). Where it cannot compile, the chunked
-    cdist of ``device_nearest`` answers, with a warning."""
-    if not _FUSED_BROKEN:
-        try:
-            return _compiled_argmin()(query.contiguous(), reference.contiguous())
-        except Exception as exc:  # noqa: BLE001 - any compiler failure: the plain path still answers
-            _FUSED_BROKEN.append(exc)
-            warnings.warn(f"fused nearest-neighbour kernel unavailable ({type(exc).__name__}: {exc}); using cdist")
-    return device_nearest(query, reference)
-
-
-_FUSED_BROKEN: list[Exception] = []  # set once compilation failed: every later call takes cdist
+    cdist of ``device_nearest`` answers."""
+    idx = COMPILED_SEARCH(query, reference)
+    return device_nearest(query, reference) if idx is None else idx
 
 
 def kdtree_nearest(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
