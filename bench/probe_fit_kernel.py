@@ -11,7 +11,7 @@ the network's or the loss's.
 
 Usage: OMP_NUM_THREADS=1 .venv/bin/python bench/probe_fit_kernel.py --dataset DS --category CAT
        [--template CAT|PATH] [--shapes 16] [--steps 300] [--collision 1.0] [--collision-grid 8]
-       [--collision-truncate 1] [--seam-contact] [--fold 0]
+       [--collision-truncate 1] [--fold 0]
        [--out bench/results/fit_kernel_CAT.json]
 """
 
@@ -46,7 +46,6 @@ def kernel_of_fits(
     n_points: int = 4000,
     collision_truncate: int = 1,
     fold: float = 0.0,
-    seam_contact: bool = False,
 ) -> dict:
     template = load_template(template_name)
     objective = Objective(
@@ -55,7 +54,6 @@ def kernel_of_fits(
         match_normals=template.match_normals,
         collision_grid=collision_grid,
         collision_truncate=collision_truncate,
-        collision_seam_contact=seam_contact,
     )
     counted = Objective(template, n_points)  # evaluate's crossing count: always the 8 x 8 grid
     batch = _batch(dataset, category, "test", n_points, shapes)
@@ -100,7 +98,6 @@ def kernel_of_fits(
         "collision": collision,
         "collision_grid": collision_grid,
         "collision_truncate": collision_truncate,
-        "seam_contact": seam_contact,
         "fold": fold,
         "fit_cpu_s": round(fit_s, 1),
         "fitted_chamfer": chamfer,
@@ -121,9 +118,6 @@ def main() -> None:
     p.add_argument("--collision-grid", type=int, default=8, help="the collision term's triangulation grid")
     p.add_argument("--collision-truncate", type=int, default=1, help="grid rows left out along shared seams (0: none)")
     p.add_argument("--fold", type=float, default=0.0, help="the fold term's weight in the fit (0: off)")
-    p.add_argument(
-        "--seam-contact", action="store_true", help="crossings whose poking end is a seam vertex cost nothing"
-    )
     p.add_argument("--out", default=None)
     a = p.parse_args()
     torch.set_num_threads(1)
@@ -137,7 +131,6 @@ def main() -> None:
         a.collision_grid,
         collision_truncate=a.collision_truncate,
         fold=a.fold,
-        seam_contact=a.seam_contact,
     )
     print(json.dumps({k: v for k, v in res.items() if k != "fits"}, indent=1))
     if a.out:

@@ -1,7 +1,5 @@
 """The paper's loss terms against independent computations."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
@@ -310,51 +308,6 @@ def test_collision_without_truncation_keeps_the_seam_band_and_still_ignores_the_
     # the grids share their vertices along the common curve: touching there is not crossing
     patches = t.patches_from_params(t.initial_params(torch.float64)[None])
     assert collision_loss(patches, full).item() == 0.0
-
-
-_FOLDED = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (0, 1, 1)]  # patch 1 stands on patch 0's edge
-
-
-def _patches(t: Template, moved: dict[int, tuple[float, float, float]] | None = None) -> torch.Tensor:
-    points = list(t.points)
-    for k, xyz in (moved or {}).items():
-        points[k] = FreePoint(xyz)
-    t = dataclasses.replace(t, points=points)
-    return t.patches_from_params(t.initial_params(torch.float64)[None])
-
-
-def test_seam_contact_names_the_boundary_row_and_the_shared_corners():
-    t = _two_patch_template(_FOLDED)
-    pairs = collision_pairs(t, grid=8, truncate=0, seam_contact=True)
-    seam = pairs.seam_i.reshape(8, 8)  # patch 0 shares its left side (s = 0) with patch 1
-    assert seam[:, 0].all() and int(seam.sum()) == 8
-    assert collision_pairs(t, grid=8, truncate=0).seam_i is None
-
-
-def test_seam_contact_skips_seam_vertices_that_meet_but_counts_a_crossing_beside_the_seam():
-    t = _two_patch_template(_FOLDED)
-    band = collision_pairs(t, grid=8, truncate=1)
-    up_to_seam = collision_pairs(t, grid=8, truncate=0)
-    contact = collision_pairs(t, grid=8, truncate=0, seam_contact=True)
-    # patch 1 moved by 0.01 into x and below z = 0: its seam row sits just under patch 0 (as where
-    # a junction splits the seam on one side only) while the rest of it stands above
-    off = torch.tensor([0.01, 0.0, -0.01], dtype=torch.float64)
-    patches = _patches(t)
-    patches[0, 1] += off
-    assert collision_loss(patches, up_to_seam).item() > 0  # the seam vertices count as crossing
-    assert collision_loss(patches, contact).item() == 0.0
-    assert collision_loss(patches, band).item() == 0.0
-    # patch 1's side curves dip under patch 0 next to the seam and come back up through it about
-    # a seventh of a patch away: a true crossing, inside the band training's default leaves out
-    dipped = _patches(t, {14: (0.3, 0.0, -0.5), 15: (0.0, 0.0, 2.0), 18: (0.0, 1.0, 2.0), 19: (0.3, 1.0, -0.5)})
-    assert collision_loss(dipped, band).item() == 0.0
-    depth = collision_loss(dipped, contact).item()
-    assert depth > 0
-    # patch 0's seam row is the poking end against the rising triangles: counted up to the seam only
-    assert depth < collision_loss(dipped, up_to_seam).item()
-    dipped.requires_grad_(True)
-    collision_loss(dipped, contact).backward()
-    assert dipped.grad[0, 1].abs().sum() > 0  # the dipping patch is pulled back
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -50,7 +50,6 @@ class Objective:
         match_normals: float = 0.0,
         leave_out: tuple[str, ...] = (),
         collision_truncate: int = 1,
-        collision_seam_contact: bool = False,
     ):
         self.template = template
         unknown = sorted(set(leave_out) - set(template.patch_labels))
@@ -63,11 +62,8 @@ class Objective:
         self.keep = torch.tensor([lab not in leave_out for lab in template.patch_labels], dtype=torch.bool)
         self.match_normals = match_normals  # λ of normal-aware matching in training (metrics: plain)
         self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
-        # grid rows left out along a seam two patches share (0: only the shared corners; crossings up to
-        # the seam count); seam contact: a crossing whose poking end lies on the seam does not
-        self.pairs = collision_pairs(
-            template, grid=collision_grid, truncate=collision_truncate, seam_contact=collision_seam_contact
-        )
+        # grid rows left out along a seam two patches share (0: only the shared corners; crossings up to the seam count)
+        self.pairs = collision_pairs(template, grid=collision_grid, truncate=collision_truncate)
         self.sym = template.symmetry_pairs()
         self.plane_x = template.symmetry.plane_x if template.symmetry else 0.0
         with torch.no_grad():

@@ -5,16 +5,10 @@ whether they cross must not count those contacts: for each pair that shares a si
 side, a corner or a junction, grid vertices within ``truncate`` rows of what they share are
 masked out on both patches. The collision loss and ``evaluate``'s crossing count use the same
 pairs, so this sits below both.
-
-With ``seam_contact`` the pairs also name each pair's seam vertices (those on what the two share):
-the loss then looks at crossings up to the seam itself but does not count a crossing whose
-poking end is a seam vertex, which is where two patches meet rather than cross (a junction that
-splits a seam on one side only leaves the two grids' seam vertices apart by a little).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -43,9 +37,6 @@ class CollisionPairs:
     # (K',) long: the pairs whose masks leave vertices out (those sharing a boundary); None: not
     # listed yet (``partial_pairs`` finds them). Built with the masks, so a training step need not.
     partial: Tensor | None = field(default=None, compare=False)
-    # (K, grid*grid) bool: vertices on what pair k shares (``seam_contact``); None: not used
-    seam_i: Tensor | None = None
-    seam_j: Tensor | None = None
 
     def partial_pairs(self) -> Tensor:
         """Indices of the pairs whose masks leave vertices out, ``(K',)`` long."""
@@ -61,8 +52,6 @@ class CollisionPairs:
             self.keep_j.to(device),
             self.grid,
             self.partial_pairs().to(device),
-            None if self.seam_i is None else self.seam_i.to(device),
-            None if self.seam_j is None else self.seam_j.to(device),
         )
 
 
@@ -88,38 +77,22 @@ def _vertex_mask(sides: list[bool], corners: list[bool], grid: int, truncate: in
     return ~drop.reshape(-1)
 
 
-def _seam_vertices(sides: list[bool], corners: list[bool], grid: int) -> Tensor:
-    """The boundary row of each shared side and each shared corner vertex, ``(grid*grid,)`` bool."""
-    return ~(_vertex_mask(sides, [False] * 4, grid, 1) & _vertex_mask([False] * 4, corners, grid, 0))
-
-
-def collision_pairs(
-    template: PatchAdjacency, grid: int = 8, truncate: int = 1, seam_contact: bool = False
-) -> CollisionPairs:
-    """All patch pairs of a ``Template`` with truncation masks for adjacent ones (and, with
-    ``seam_contact``, their seam vertices)."""
+def collision_pairs(template: PatchAdjacency, grid: int = 8, truncate: int = 1) -> CollisionPairs:
+    """All patch pairs of a ``Template`` with truncation masks for adjacent ones."""
     n = template.num_patches
     adjacent = set(template.adjacency())
-    pairs, keep_i, keep_j, seam_i, seam_j = [], [], [], [], []
+    pairs, keep_i, keep_j = [], [], []
     full = torch.ones(grid * grid, dtype=torch.bool)
     for i in range(n):
         for j in range(i + 1, n):
             pairs.append((i, j))
             if (i, j) in adjacent:
-                feats_i, feats_j = template.shared_features(i, j), template.shared_features(j, i)
-                keep_i.append(_vertex_mask(*feats_i, grid, truncate))
-                keep_j.append(_vertex_mask(*feats_j, grid, truncate))
-                seam_i.append(_seam_vertices(*feats_i, grid))
-                seam_j.append(_seam_vertices(*feats_j, grid))
+                keep_i.append(_vertex_mask(*template.shared_features(i, j), grid, truncate))
+                keep_j.append(_vertex_mask(*template.shared_features(j, i), grid, truncate))
             else:
                 keep_i.append(full)
                 keep_j.append(full)
-                seam_i.append(~full)
-                seam_j.append(~full)
-    packed = _pack(pairs, keep_i, keep_j, grid)
-    if not seam_contact or not pairs:
-        return packed
-    return dataclasses.replace(packed, seam_i=torch.stack(seam_i), seam_j=torch.stack(seam_j))
+    return _pack(pairs, keep_i, keep_j, grid)
 
 
 def unconnected_pairs(num_patches: int, grid: int = 8) -> CollisionPairs:

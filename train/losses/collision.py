@@ -13,8 +13,6 @@ pair (j, i) does the same for patch j, so the two separate. Patches that do not 
 Pairs that share a curve, part of a curve, a corner or a junction are truncated: grid vertices
 within ``truncate`` rows of the shared sides/corners and the edges and triangles touching them
 are left out on both patches, so patches that only meet along their common boundary cost 0.
-With the pairs' ``seam_contact`` (and ``truncate`` 0) the term looks up to the seam instead and
-skips only crossings whose poking end is a seam vertex (``train.geometry.patch_pairs``).
 
 Culling keeps it cheap: patch pairs by bounding box, then (edge, triangle) pairs by bounding box
 and by the edge's end points lying on both sides of the triangle's plane, all detached; the
@@ -203,7 +201,6 @@ def collision_loss(
         # n..2n-1 j's through i's (the same cell pairs, columns swapped)
         b2, src, dst = torch.cat([b, b]), torch.cat([pi, pj]), torch.cat([pj, pi])
         k_src, k_dst = torch.cat([keep_i[k], keep_j[k]]), torch.cat([keep_j[k], keep_i[k]])
-        seam_src = None if on.seam_i is None else torch.cat([on.seam_i[k], on.seam_j[k]])
         swapped = torch.stack([cells[:, 0] + n, cells[:, 2], cells[:, 1]], -1)
         hit = _crossings(v, b2, src, dst, k_src, k_dst, torch.cat([cells, swapped]), pairs.grid)
     if hit.shape[0] == 0:
@@ -219,10 +216,7 @@ def collision_loss(
         all_sd = ((_at(v, br, sr) - t[:, None, 0].detach()) * unit[:, None].detach()).sum(-1)
         side = torch.sign((all_sd * k_src[r].to(all_sd.dtype)).sum(-1))
         side = torch.where(side == 0, torch.ones_like(side), side)
-        poking = signed.detach() * side[:, None] < 0  # one end per crossing
-        if seam_src is not None:  # a seam vertex on the other side meets the patch, it does not cross it
-            poking &= ~torch.gather(seam_src[r], 1, torch.stack([va, vb], 1))
-        minority = poking.to(signed.dtype)
+        minority = (signed.detach() * side[:, None] < 0).to(signed.dtype)  # one end per crossing
     # rows come sorted by candidate row, the i→j direction first: summed in the order of two
     # passes, one per direction
     depth = patches.new_zeros(n).index_add(0, torch.where(r < n, r, r - n), (signed.abs() * minority).sum(-1))
