@@ -34,7 +34,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         "contrast 0.1, cosine decay from 3e-4, the output layer at 0.1 of it",
     ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
-    "car": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "car": (
+        dict(contrast=1.0, steps=5400, **_COSINE),
+        {"fold": 1.0},
+        "contrast 1.0, cosine decay, fold term 1.0 (CAD-clean predictions)",
+    ),
     "guitar": (
         dict(contrast=0.1, steps=5900, **_COSINE),
         {"collision": 0.3},
