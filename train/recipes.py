@@ -45,7 +45,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         "contrast 0.1, cosine decay, collision weight 0.3",
     ),
     "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
-    "knife": (dict(contrast=1.0, steps=3000, **_COSINE), {}, "contrast 1.0, cosine decay over 3,000 steps"),
+    "knife": (
+        dict(contrast=1.0, steps=3000, **_COSINE),
+        {"fold": 1.0},
+        "contrast 1.0, cosine decay over 3,000 steps, fold term 1.0 (CAD-clean predictions)",
+    ),
     "mug": (
         dict(contrast=0.1, output_lr_scale=0.3, steps=4000, **_COSINE),
         {},
