@@ -48,8 +48,7 @@ def fit_to_targets(
     (``train.template_fit.fit_batch``), the collision term at weight ``collision`` (default off,
     for speed: the ceiling is about L_Ch) and the fold term at ``fold``."""
     settings = PatchFitSettings(steps=steps, lr=lr, collision=collision)
-    extra = {"fold": fold} if fold else None
-    return fit_batch(objective, batch, settings, seed=0, category=objective.template.name or "", weights=extra)
+    return fit_batch(objective, batch, settings, seed=0, category=objective.template.name or "", weights={"fold": fold})
 
 
 def fit_ceiling(

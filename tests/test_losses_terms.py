@@ -165,7 +165,7 @@ def test_collision_sees_a_crossing_between_grid_vertices_and_its_gradient_separa
     corners = torch.stack([_square(0.0), _wall(0.37, -0.3, 0.7)])
     patches = patch_from_corners(corners)[None].requires_grad_(True)
     loss = collision_loss(patches, loose)
-    assert loss.item() > 0.02  # about a twentieth of the patch turned over
+    assert loss.item() > 0.05
     (grad,) = torch.autograd.grad(loss.sum(), patches)
     # descent lifts the wall (most of it is above the square) and lowers the square under it
     assert -grad[0, 1, ..., 2].sum() > 0 and -grad[0, 0, ..., 2].sum() < 0
