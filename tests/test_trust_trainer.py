@@ -173,7 +173,7 @@ def test_every_command_refuses_a_checkpoint_that_would_run_code(world, tmp_path,
 def test_the_command_line_refuses_it_with_exit_status_2(world, tmp_path):
     marker = tmp_path / "MARKER"
     evil = _evil_checkpoint(tmp_path / "evil.pt", marker)
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
     res = subprocess.run(
         [
             sys.executable,
