@@ -200,3 +200,77 @@ def test_fit_term_refuses_a_dataset_without_fits(tmp_path: Path) -> None:
     )
     with pytest.raises(UsageError, match="--fit-patches"):
         fit(s, progress=False)
+
+
+# ---- the readout (--fit-readout) ---------------------------------------------------------------
+
+
+def test_readout_teaches_the_encoder_and_never_the_output_layer() -> None:
+    from train.fit import make_optimizer, train_step
+    from train.model import SketchToPatches, TrainingNet
+
+    tpl = load_template("sphere24")
+    torch.manual_seed(0)
+    model = SketchToPatches(tpl.initial_params(), hidden=(32,), encoder_width=8)
+    net = TrainingNet(model, tpl.initial_params())
+    images = torch.rand(3, 1, 1, 32, 32)
+    out = net(images)
+    assert torch.equal(out["readout"], out["params"])  # both start at the template
+    assert len(list(net.parameters())) == len(list(model.parameters())) + 2  # the model's, then its own
+
+    objective = Objective(tpl, n_points=64)
+    target = tpl.initial_params()[None].repeat(3, 1) + 0.05 * torch.randn(3, tpl.num_params)
+    batch = {**_fit_batch(target, [True] * 3), "images": images, "view_mask": torch.ones(3, 1, dtype=torch.bool)}
+    readout = objective.readout_term(out["readout"], batch)
+    expect = (tpl.points_from_params(out["readout"]) - tpl.points_from_params(target)).square().sum(-1).mean(-1)
+    assert torch.allclose(readout, expect)
+    assert objective.readout_term(out["readout"], {k: v for k, v in batch.items() if k != "fit_params"}) is None
+
+    # only the readout's term: the encoder and the readout learn, the head's layers get nothing
+    opt = make_optimizer(net, 1e-3, torch.device("cpu"))
+    no_terms = dataclasses.replace(only_term("chamfer", LossWeights()), chamfer=0.0)
+    first = None
+    for _ in range(3):  # the readout starts at zero weights: the encoder's gradient comes from step 2
+        net.zero_grad()
+        loss, terms = train_step(
+            net, opt, objective, batch, objective.sample_st(None), no_terms, torch.device("cpu"), fit_readout=1.0
+        )
+        first = float(terms["fit_readout"].detach().mean()) if first is None else first
+        assert model.out.weight.grad is None or model.out.weight.grad.abs().sum() == 0
+        assert all(p.grad is None or p.grad.abs().sum() == 0 for p in model.hidden.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.encoder.parameters())
+    assert float(objective.readout_term(net(images)["readout"], batch).mean()) < first  # it learns the fits
+
+
+def test_fit_with_the_readout_runs_and_resumes_on_a_fitted_build(fitted: Path, tmp_path: Path) -> None:
+    from train.cli import main
+    from train.fit import load_checkpoint
+
+    out = tmp_path / "run"
+    argv = ["fit", "--dataset", str(fitted), "--category", CATEGORY, "--template", CATEGORY, "--out", str(out)]
+    small = ["--batch-size", "2", "--points", "300", "--image-size", "64", "--encoder-width", "8", "--workers", "0"]
+    run = [*argv, *small, "--log-every", "1", "--checkpoint-every", "3", "--fit-readout", "2"]
+    assert main([*run, "--steps", "3"]) == 0
+    kept = load_checkpoint(out / "checkpoint.pt")
+    assert set(kept["fit_readout"]) == {"weight", "bias"}  # a resume continues the readout too
+    assert main([*run, "--steps", "5"]) == 0
+    rows = list(csv.DictReader(open(out / "log.csv")))
+    assert [int(r["step"]) for r in rows] == [1, 2, 3, 4, 5]
+    assert all(float(r["fit_readout"]) > 0 for r in rows) and all(float(r["fit"]) == 0 for r in rows)
+    # without fits in the shards the option is refused, as --w-fit is
+    plain = write_fixture_shards(tmp_path / "plain", counts={"train": 4, "val": 2, "test": 2})
+    s = FitSettings(
+        dataset=str(plain),
+        category="knife",
+        template="sphere24",
+        out=str(tmp_path / "r2"),
+        steps=2,
+        batch_size=2,
+        workers=0,
+        n_points=200,
+        image_size=64,
+        encoder_width=8,
+        fit_readout=1.0,
+    )
+    with pytest.raises(UsageError, match="--fit-readout needs fitted patches"):
+        fit(s, progress=False)

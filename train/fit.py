@@ -43,7 +43,7 @@ from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
 
-CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "val_chamfer", "lr", "grad_norm", "seconds")
+CSV_FIELDS = ("step", "loss") + TERMS + ("contrast", "fit_readout", "val_chamfer", "lr", "grad_norm", "seconds")
 LR_SCHEDULES = ("constant", "cosine")
 
 
@@ -131,6 +131,12 @@ class FitSettings:
         "the fit term's weight falls linearly from --w-fit to 0 over this many steps, then stays 0 "
         "(0: constant --w-fit; the term needs a --fit-patches dataset)",
     )
+    fit_readout: float = setting(
+        0.0,
+        "weight of the fit stage's targets taught to the encoder through a training-only linear "
+        "readout of its codes, never through the output layer (not in the paper; 0: off; needs a "
+        "--fit-patches dataset)",
+    )
     weights: LossWeights = LossWeights()
 
     def __post_init__(self) -> None:
@@ -165,7 +171,7 @@ class FitSettings:
             _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
             "0 (off) or a decay between 0 and 1",
         )
-        for name in ("clip_grad", "contrast", "match_normals", "input_blur"):
+        for name in ("clip_grad", "contrast", "match_normals", "input_blur", "fit_readout"):
             value = getattr(self, name)
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
                 continue
@@ -206,10 +212,12 @@ def save_checkpoint(
     val_chamfer: float | None = None,
     train_model: torch.nn.Module | None = None,
     framing: Framing | None = None,
+    readout: torch.nn.Module | None = None,
 ) -> None:
     """``model`` is the network the checkpoint hands out (evaluate, predict); ``train_model``, when
     it differs (a weight average is handed out), holds the weights a resume continues training;
-    ``framing``, how the training sketches fill their frame (a person's drawing is re-framed so)."""
+    ``framing``, how the training sketches fill their frame (a person's drawing is re-framed so);
+    ``readout``, the training-only readout of ``--fit-readout`` (kept for a resume only)."""
     with atomic_path(path) as tmp:
         torch.save(
             {
@@ -224,6 +232,7 @@ def save_checkpoint(
                 "template_json": template.to_json(),
                 "num_params": model.num_params,
                 **({"framing": dataclasses.asdict(framing)} if framing is not None else {}),
+                **({"fit_readout": readout.state_dict()} if readout is not None else {}),
             },
             tmp,
         )
@@ -538,6 +547,7 @@ def train_step(
     clip_grad: float = 0.0,
     guard: DivergenceGuard | None = None,
     precision: str = "fp32",
+    fit_readout: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -553,7 +563,9 @@ def train_step(
 
     Host round trips: none on a GPU but the collision term's culling (``train.losses.collision``);
     the loss and terms come back as device tensors (``fit`` reads them every ``--log-every``).
-    ``precision`` "bf16" runs the network (not the loss) in bfloat16 autocast on a GPU."""
+    ``precision`` "bf16" runs the network (not the loss) in bfloat16 autocast on a GPU.
+    ``fit_readout`` > 0 adds the readout's fit term (a net with a readout, a fitted batch) as
+    "fit_readout"."""
     # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
     # on a GPU run), and the view mask stays on the host: the encoder reads it there
     pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
@@ -565,6 +577,10 @@ def train_step(
     if contrast > 0:
         terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
         loss = loss + contrast * terms["contrast"].mean()
+    if fit_readout > 0:
+        readout = objective.readout_term(out["readout"], batch)
+        terms["fit_readout"] = readout if readout is not None else out["readout"].new_zeros(len(out["readout"]))
+        loss = loss + fit_readout * terms["fit_readout"].mean()
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     terms["grad_norm"] = clip_gradient(net, clip_grad)
@@ -623,10 +639,14 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         template.initial_params(), encoder_width=settings.encoder_width, basis=basis, input_blur=settings.input_blur
     )
     model = place_network(model, info.device, settings.precision)
-    trainee = TrainingNet(model)
+    trainee = TrainingNet(model, template.initial_params() if settings.fit_readout > 0 else None)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
     if ckpt is not None:
         model.load_state_dict(ckpt.get("train_model", ckpt["model"]))
+        if trainee.readout is not None:
+            if "fit_readout" not in ckpt:
+                raise UsageError(f"{ckpt_path}: saved without the --fit-readout readout; resume it without the option")
+            trainee.readout.load_state_dict(ckpt["fit_readout"])
         optimizer.load_state_dict(ckpt["optimizer"])
         start = int(ckpt["step"])
     best = _best_so_far(out, start)  # read before anything is written: a bad best.pt stops the run here
@@ -658,7 +678,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         info.rank,
         info.world,
         template.symmetry is not None,
-        param_mirror(template) if settings.weights.fit else None,
+        param_mirror(template) if settings.weights.fit or settings.fit_readout else None,
         pin_memory=info.device.type == "cuda",
     )
     logger = _Logger(out, start, info, settings) if info.is_main else None
@@ -676,10 +696,12 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
 
         bar = tqdm(total=settings.steps, initial=start, desc="fit", dynamic_ncols=True)
     stream = iter(loader)
-    first = next(stream) if settings.weights.fit and start < settings.steps else None
+    needs_fits = bool(settings.weights.fit or settings.fit_readout)
+    first = next(stream) if needs_fits and start < settings.steps else None
     if first is not None and "fit_params" not in first:
+        flag = "--w-fit" if settings.weights.fit else "--fit-readout"
         raise UsageError(
-            f"{settings.dataset}: --w-fit needs fitted patches, and the {settings.category} shards have none "
+            f"{settings.dataset}: {flag} needs fitted patches, and the {settings.category} shards have none "
             "(build the dataset with --fit-patches)"
         )
     net.train()
@@ -711,6 +733,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 settings.clip_grad,
                 guard,
                 settings.precision,
+                settings.fit_readout,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()
@@ -743,7 +766,15 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         if keep_step:
             if logger:
                 save_checkpoint(
-                    ckpt_path, served, optimizer, done, settings, template, train_model=trained, framing=framing
+                    ckpt_path,
+                    served,
+                    optimizer,
+                    done,
+                    settings,
+                    template,
+                    train_model=trained,
+                    framing=framing,
+                    readout=trainee.readout,
                 )
             kept = done
         if bar:

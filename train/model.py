@@ -129,19 +129,34 @@ class TrainingNet(nn.Module):
     """The network as training calls it: one ``forward`` that also returns what the contrastive
     term needs (the codes of each drawing and of a second drawing of the same model), so
     DistributedDataParallel sees every parameter used. Its parameters are the network's, in the
-    same order."""
+    same order, then the training-only readout's when there is one."""
 
-    def __init__(self, model: SketchToPatches):
+    def __init__(self, model: SketchToPatches, readout_params: torch.Tensor | None = None):
         super().__init__()
         self.model = model
+        # Training only (--fit-readout): a linear readout of the encoder's codes onto the template's
+        # parameters, taught the fit stage's fits, so the encoder learns the shapes without going
+        # through the hidden layers and the (slow) output layer. Never handed out: the network's
+        # output stays what the paper's loss teaches. Starts at the template, like ``model.out``.
+        self.readout: nn.Linear | None = None
+        if readout_params is not None:
+            readout_params = torch.as_tensor(readout_params, dtype=torch.float32).reshape(-1)
+            self.readout = nn.Linear(model.encoder.out_features, readout_params.numel())
+            nn.init.zeros_(self.readout.weight)
+            with torch.no_grad():
+                self.readout.bias.copy_(readout_params)
+            self.readout.to(next(model.parameters()).device)
 
     def forward(
         self, images: torch.Tensor, view_mask: torch.Tensor | None = None, pair_images: torch.Tensor | None = None
     ) -> dict[str, torch.Tensor]:
-        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)."""
+        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C),
+        and with a readout, "readout" (B, D): the readout's parameters from the same codes."""
         m = self.model
         codes = m.encode(images, view_mask)
         out = {"params": m.decode_latent(m.hidden[0](codes))}
+        if self.readout is not None:
+            out["readout"] = self.readout(codes)
         if pair_images is not None:
             out["codes"], out["pair_codes"] = codes, m.encode(pair_images)
         return out

@@ -20,6 +20,7 @@ from train.errors import UsageError
 from train.geometry.coons import evaluate_patches
 from train.geometry.patch_pairs import CollisionPairs, collision_pairs
 from train.losses.chamfer import Groups
+from train.losses.fit_target import fit_target_loss
 from train.losses.total import loss_terms
 from train.losses.weights import LossWeights
 from train.templates import Template
@@ -183,6 +184,16 @@ class Objective:
         if mask is not None:
             used = self.used_points(mask)
         return points, used & batch["fit_valid"].to(device, non_blocking=True)[:, None]
+
+    def readout_term(self, params: Tensor, batch: dict) -> Tensor | None:
+        """The fit term (B,) of a training-only readout's parameters ``params (B, D)``
+        (``--fit-readout``): its control points against the batch's fitted ones, present patches
+        only; None when the batch has no valid fit target."""
+        dev = params.device
+        fit_points, fit_weight = self.fit_targets(batch, self.patch_mask(batch["meta"], dev), dev)
+        if fit_points is None:
+            return None
+        return fit_target_loss(self.template.points_from_params(params), fit_points, fit_weight)
 
     def batch_terms(
         self, params: Tensor, batch: dict, st: Tensor, weights: LossWeights, training: bool = True
