@@ -183,7 +183,11 @@ def test_fit_with_the_fit_term_runs_on_a_fitted_build(fitted: Path, tmp_path: Pa
     assert float(rows[-1]["fit"]) == 0  # ... and off once its weight has fallen to 0 (step 6 > 5)
 
 
-def test_fit_term_refuses_a_dataset_without_fits(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    "option, flag",
+    [({"weights": LossWeights(fit=1.0)}, "--w-fit"), ({"fit_readout": 1.0}, "--fit-readout")],
+)
+def test_fit_options_refuse_a_dataset_without_fits(tmp_path: Path, option: dict, flag: str) -> None:
     shards = write_fixture_shards(tmp_path / "ds", counts={"train": 4, "val": 2, "test": 2})
     s = FitSettings(
         dataset=str(shards),
@@ -196,9 +200,9 @@ def test_fit_term_refuses_a_dataset_without_fits(tmp_path: Path) -> None:
         n_points=200,
         image_size=64,
         encoder_width=8,
-        weights=LossWeights(fit=1.0),
+        **option,
     )
-    with pytest.raises(UsageError, match="--fit-patches"):
+    with pytest.raises(UsageError, match=f"{flag} needs fitted patches.*--fit-patches"):
         fit(s, progress=False)
 
 
@@ -259,20 +263,3 @@ def test_fit_with_the_readout_runs_and_resumes_on_a_fitted_build(fitted: Path, t
     rows = list(csv.DictReader(open(out / "log.csv")))
     assert [int(r["step"]) for r in rows] == [1, 2, 3, 4, 5]
     assert all(float(r["fit_readout"]) > 0 for r in rows) and all(float(r["fit"]) == 0 for r in rows)
-    # without fits in the shards the option is refused, as --w-fit is
-    plain = write_fixture_shards(tmp_path / "plain", counts={"train": 4, "val": 2, "test": 2})
-    s = FitSettings(
-        dataset=str(plain),
-        category="knife",
-        template="sphere24",
-        out=str(tmp_path / "r2"),
-        steps=2,
-        batch_size=2,
-        workers=0,
-        n_points=200,
-        image_size=64,
-        encoder_width=8,
-        fit_readout=1.0,
-    )
-    with pytest.raises(UsageError, match="--fit-readout needs fitted patches"):
-        fit(s, progress=False)
