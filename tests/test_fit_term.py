@@ -263,3 +263,22 @@ def test_fit_with_the_readout_runs_and_resumes_on_a_fitted_build(fitted: Path, t
     rows = list(csv.DictReader(open(out / "log.csv")))
     assert [int(r["step"]) for r in rows] == [1, 2, 3, 4, 5]
     assert all(float(r["fit_readout"]) > 0 for r in rows) and all(float(r["fit"]) == 0 for r in rows)
+
+
+def test_readout_trains_under_two_rank_ddp(fitted: Path, tmp_path: Path) -> None:
+    """Every rank builds the same readout and DDP sees it used each step: the ranks end with the
+    same weights and only rank 0 writes the checkpoint, which holds the readout."""
+    import json
+
+    from test_ddp_fit import _spawn_within
+
+    from train.fit import load_checkpoint
+
+    out, report = tmp_path / "run", tmp_path / "report"
+    report.mkdir()
+    over = dict(template=CATEGORY, image_size=64, encoder_width=8, max_views=1, fit_readout=2.0)
+    _spawn_within(300, str(fitted), str(out), str(report), over)
+    r0, r1 = (json.loads((report / f"rank{r}.json").read_text()) for r in range(2))
+    assert "error" not in r0 and "error" not in r1, (r0, r1)
+    assert r0["param_digest"] == r1["param_digest"] and r0["last_loss"] == r1["last_loss"]
+    assert set(load_checkpoint(out / "checkpoint.pt")["fit_readout"]) == {"weight", "bias"}
