@@ -11,6 +11,7 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from pipeline.core.settings_io import SettingError
 from train.data import DataSettings, NoShards, make_loader
+from train.errors import UsageError
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
 from train.losses.weights import LossWeights
@@ -131,6 +132,21 @@ def test_evaluate_mirror_average_answers_through_the_flipped_drawing_too(shards,
     assert both["template"] == plain["template"]  # the same samples and points
     assert both["model"]["chamfer"] != plain["model"]["chamfer"]
     assert both["blind"]["chamfer"] != plain["blind"]["chamfer"]  # the blind mean is the averaged network's
+
+
+def test_evaluate_measures_at_a_requested_point_count(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 2), progress=False)
+    ckpt = out / "checkpoint.pt"
+    own = evaluate(ckpt, shards, "test", cad_check=0)
+    same = evaluate(ckpt, shards, "test", cad_check=0, points=300)
+    denser = evaluate(ckpt, shards, "test", cad_check=0, points=800)
+    assert own["points"] == same["points"] == 300 and denser["points"] == 800
+    assert same["template"] == own["template"] and same["model"] == own["model"]
+    # denser samples sit nearer each other: the template's Chamfer falls
+    assert denser["template"]["chamfer"] < own["template"]["chamfer"]
+    with pytest.raises(UsageError, match="--points"):
+        evaluate(ckpt, shards, "test", cad_check=0, points=0)
 
 
 @pytest.mark.slow

@@ -152,6 +152,7 @@ def _run(a: argparse.Namespace) -> None:
                 e.out_path(),
                 cad_check=e.cad_check > 0,
                 mirror_average=e.mirror_average,
+                points=e.points,
             )
             print(format_rows(res))
             print(format_table(res))
@@ -172,6 +173,7 @@ def _run(a: argparse.Namespace) -> None:
                 leave_out=tuple(e.leave_out),
                 variant=e.variant,
                 mirror_average=e.mirror_average,
+                points=e.points,
             )
         print(format_table(res))
         print(f"saved {e.out_path()}")

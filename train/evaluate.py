@@ -138,6 +138,11 @@ class EvaluateSettings:
         0, "pencil variant of each view (0: the dark, thin line drawing; 1: the light, broad, shaded one)"
     )
     tau: tuple[float, ...] = setting((0.02, 0.05), "F-score distance thresholds (unit-sphere frame)")
+    points: int | None = setting(
+        None,
+        "sample points per shape for the metrics (default: the run's --points); Chamfer falls as samples "
+        "get denser, so compare runs trained at different --points at one count",
+    )
     limit: int | None = setting(None, "evaluate at most this many samples (default: all)")
     out: str | None = setting(None, "JSON path (default: eval_<checkpoint>_<split>.json next to the checkpoint)")
     mirror_average: bool = setting(
@@ -165,10 +170,12 @@ class EvaluateSettings:
         return self.out or str(ckpt.with_name(f"eval_{ckpt.stem}_{what}.json"))
 
 
-def check_evaluate_args(views: int, taus: tuple[float, ...], limit: int | None) -> None:
+def check_evaluate_args(views: int, taus: tuple[float, ...], limit: int | None, points: int | None = None) -> None:
     """UsageError naming the flag of an argument out of range (before any work is done)."""
     if not (isinstance(views, int) and views >= 1):
         raise UsageError(f"views must be an integer >= 1, got {views!r} (--views)")
+    if points is not None and not (isinstance(points, int) and points >= 1):
+        raise UsageError(f"points must be an integer >= 1 or unset (the run's), got {points!r} (--points)")
     if limit is not None and not (isinstance(limit, int) and limit >= 1):
         raise UsageError(f"limit must be an integer >= 1 or unset (all samples), got {limit!r} (--limit)")
     if not taus or not all(0 < t < math.inf for t in taus):
@@ -191,6 +198,7 @@ def evaluate(
     leave_out: tuple[str, ...] = (),
     variant: int = 0,
     mirror_average: bool = False,
+    points: int | None = None,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
     With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
@@ -202,8 +210,8 @@ def evaluate(
     the TORCS car bodies have no wheels (the game adds its own). ``variant``: the pencil variant
     drawn of each view, for the sketches and the blind mean alike. ``mirror_average``: the network
     answers through :class:`train.mirror_average.MirrorAverage`, for the sketches and the blind
-    mean alike."""
-    check_evaluate_args(views, taus, limit)
+    mean alike. ``points``: sample points per shape for the metrics (default: the run's)."""
+    check_evaluate_args(views, taus, limit, points)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
     if not (isinstance(variant, int) and variant >= 0):
@@ -212,15 +220,16 @@ def evaluate(
     if mirror_average:
         run = mirror_averaged(run)
     s, template, model = run.settings, run.template, run.model
+    n_points = points or s.n_points
     try:
-        objective = Objective(template, s.n_points, leave_out=tuple(leave_out))
+        objective = Objective(template, n_points, leave_out=tuple(leave_out))
     except ValueError as exc:
         raise UsageError(f"{exc} (--leave-out)") from None
     names = metric_names(tuple(taus))
     # the same evaluation samples on every call, and for the network as for the template
     baselines = ("model", "template", "blind")
     generators = {name: torch.Generator().manual_seed(0) for name in baselines}
-    data = DataSettings(eval_views=views, eval_variant=variant, n_points=s.n_points, image_size=s.image_size)
+    data = DataSettings(eval_views=views, eval_variant=variant, n_points=n_points, image_size=s.image_size)
     cat = category or s.category
     blind = blind_output(model, blind_dataset or dataset, cat, data, batch_size)[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
@@ -245,6 +254,7 @@ def evaluate(
         **({"left_out": sorted(leave_out)} if leave_out else {}),
         "samples": count,
         "views": views,
+        "points": n_points,
         "variant": variant,
         "mirror_average": mirror_average,
         "fscore_taus": list(taus),

@@ -86,18 +86,21 @@ def evaluate_images(
     out: str | Path | None = None,
     cad_check: bool = True,
     mirror_average: bool = False,
+    points: int | None = None,
 ) -> dict:
     """Per image: what normalization did, the kernel's verdict and (with a ground-truth mesh)
     the metrics; means over the images for the network (``model``) and the template alone
     (``template``, on images with ground truth); saved as JSON when ``out``. ``mirror_average``:
-    the network answers through :class:`train.mirror_average.MirrorAverage`, as predict's flag."""
-    check_evaluate_args(1, taus, limit)
+    the network answers through :class:`train.mirror_average.MirrorAverage`, as predict's flag.
+    ``points``: sample points per shape for the metrics (default: the run's)."""
+    check_evaluate_args(1, taus, limit, points)
     files = image_files(folder)[:limit]
     run = load_run(checkpoint)
     if mirror_average:
         run = mirror_averaged(run)
     template, s = run.template, run.settings
-    objective = Objective(template, s.n_points)
+    n_points = points or s.n_points
+    objective = Objective(template, n_points)
     names = metric_names(tuple(taus))
     keep = template.active_patches(None)  # every optional part present, as predict without --part
     base = template.initial_params()[None]
@@ -125,7 +128,7 @@ def evaluate_images(
             verdicts.append(v.clean)
         truth = ground_truth(path)
         if truth is not None:
-            batch = {"points": target_points(truth, s.n_points)[None], "meta": [{}]}
+            batch = {"points": target_points(truth, n_points)[None], "meta": [{}]}
             row["ground_truth"] = truth.name
             for name, p in (("model", params), ("template", base)):
                 gen = torch.Generator().manual_seed(0)  # the same samples for the network as for the template
