@@ -10,11 +10,13 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from pipeline.core.settings_io import SettingError
+from train.augmentation import SteadyAverage
 from train.data import DataSettings, NoShards, make_loader
 from train.errors import UsageError
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
 from train.losses.weights import LossWeights
+from train.predict import predict_params
 from train.templates import load_template
 
 
@@ -132,6 +134,26 @@ def test_evaluate_mirror_average_answers_through_the_flipped_drawing_too(shards,
     assert both["template"] == plain["template"]  # the same samples and points
     assert both["model"]["chamfer"] != plain["model"]["chamfer"]
     assert both["blind"]["chamfer"] != plain["blind"]["chamfer"]  # the blind mean is the averaged network's
+
+
+def test_evaluate_steady_answers_as_predict_does(shards, tmp_path):
+    out = tmp_path / "run"
+    fit(settings(shards, out, 3, lr=1e-2), progress=False)
+    ckpt = out / "checkpoint.pt"
+    plain = evaluate(ckpt, shards, "test", cad_check=0)
+    steady = evaluate(ckpt, shards, "test", cad_check=0, steady=True)
+    assert steady["steady"] and not plain["steady"]
+    assert steady["template"] == plain["template"]
+    assert steady["model"]["chamfer"] != plain["model"]["chamfer"]
+    assert steady["blind"]["chamfer"] != plain["blind"]["chamfer"]  # the blind mean is the averaged network's
+    # the wrapper is predict's answer, with the view mask carried to every copy
+    run = load_run(ckpt)
+    images = torch.rand(2, 2, 1, 32, 32)
+    mask = torch.tensor([[True, True], [True, False]])
+    wrapped = SteadyAverage(run.model).eval()
+    torch.testing.assert_close(wrapped(images[:, :1]), predict_params(run, images[:, :1]))
+    alone = wrapped(images[1:, :1])
+    torch.testing.assert_close(wrapped(images, mask)[1:], alone)
 
 
 def test_evaluate_measures_at_a_requested_point_count(shards, tmp_path):

@@ -49,6 +49,7 @@ def jitter_image(img: np.ndarray, rng: np.random.Generator, jitter: Jitter, flip
 STEADY_SHIFTS_PX = (-1.0, 0.0, 1.0)
 STEADY_SCALES = (0.97, 1.0, 1.03)
 STEADY_BLUR_SIGMA = 0.7
+STEADY_COPIES = len(STEADY_SHIFTS_PX) ** 2 * len(STEADY_SCALES)
 
 
 def _blur(images: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -84,3 +85,19 @@ def steady_output(model: Callable[[torch.Tensor], torch.Tensor], images: torch.T
     k, b = copies.shape[:2]
     out = model(copies.reshape(k * b, *copies.shape[2:]))
     return out.reshape(k, b, *out.shape[1:]).mean(0)
+
+
+class SteadyAverage(torch.nn.Module):
+    """``model`` answering as ``predict`` does: its output for ``images (B, V, 1, S, S)`` (or
+    ``(B, 1, S, S)``) averaged over :func:`steady_copies`, the view mask repeated for each copy."""
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
+        if images.dim() == 4:
+            images = images.unsqueeze(1)
+        # steady_copies stacks copy-major: copy k of item b sits at k * B + b
+        mask = None if view_mask is None else view_mask.repeat(STEADY_COPIES, 1)
+        return steady_output(lambda x: self.model(x, mask), images)

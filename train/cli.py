@@ -174,6 +174,7 @@ def _run(a: argparse.Namespace) -> None:
                 variant=e.variant,
                 mirror_average=e.mirror_average,
                 points=e.points,
+                steady=e.steady,
             )
         print(format_table(res))
         print(f"saved {e.out_path()}")

@@ -28,6 +28,7 @@ from pipeline.core.atomic import write_json
 from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import setting
 from train.data import DataSettings, NoShards, make_loader, shard_urls
+from train.augmentation import SteadyAverage
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import KernelVerdict, kernel_verdict
@@ -150,6 +151,11 @@ class EvaluateSettings:
         "answer each drawing with the mean of the network's reading of it and of its left-right flip, "
         "mirrored back (symmetric templates; twice the inference cost; the blind mean alike)",
     )
+    steady: bool = setting(
+        False,
+        "answer each drawing as predict does: the mean over 27 small jitters of it (27 times the inference "
+        "cost; the blind mean alike; --images always does)",
+    )
     cad_check: int = setting(
         16,
         "check this many predictions with the CAD kernel (cad_clean: the share predict would call clean; "
@@ -199,6 +205,7 @@ def evaluate(
     variant: int = 0,
     mirror_average: bool = False,
     points: int | None = None,
+    steady: bool = False,
 ) -> dict:
     """Mean metrics of the network and of the template baseline; saved as JSON when ``out``.
     With ``cad_check`` > 0, also the CAD kernel's clean verdict on that many of the network's
@@ -210,7 +217,9 @@ def evaluate(
     the TORCS car bodies have no wheels (the game adds its own). ``variant``: the pencil variant
     drawn of each view, for the sketches and the blind mean alike. ``mirror_average``: the network
     answers through :class:`train.mirror_average.MirrorAverage`, for the sketches and the blind
-    mean alike. ``points``: sample points per shape for the metrics (default: the run's)."""
+    mean alike. ``points``: sample points per shape for the metrics (default: the run's).
+    ``steady``: the network answers as ``predict`` does, through
+    :class:`train.augmentation.SteadyAverage`, for the sketches and the blind mean alike."""
     check_evaluate_args(views, taus, limit, points)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
@@ -219,6 +228,8 @@ def evaluate(
     run = load_run(checkpoint)
     if mirror_average:
         run = mirror_averaged(run)
+    if steady:
+        run = dataclasses.replace(run, model=SteadyAverage(run.model).eval())
     s, template, model = run.settings, run.template, run.model
     n_points = points or s.n_points
     try:
@@ -257,6 +268,7 @@ def evaluate(
         "points": n_points,
         "variant": variant,
         "mirror_average": mirror_average,
+        "steady": steady,
         "fscore_taus": list(taus),
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},

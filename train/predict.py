@@ -21,7 +21,7 @@ from pipeline.core.atomic import write_json, write_npy
 from pipeline.core.images import save_png
 from pipeline.core.settings_io import setting
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
-from train.augmentation import STEADY_SCALES, STEADY_SHIFTS_PX, steady_output
+from train.augmentation import STEADY_COPIES, steady_output
 from train.data import to_network
 from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
@@ -260,9 +260,6 @@ def verdict_line(clean: bool, problems: list[str]) -> str:
     """The verdict in words, as ``predict`` prints it last (a mesh can be watertight and still
     pass through itself)."""
     return "prediction is clean" if clean else "NOT CLEAN: " + "; ".join(problems)
-
-
-STEADY_COPIES = len(STEADY_SHIFTS_PX) ** 2 * len(STEADY_SCALES)
 
 
 @torch.no_grad()
