@@ -27,8 +27,8 @@ import torch
 from pipeline.core.atomic import write_json
 from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import setting
-from train.data import DataSettings, NoShards, make_loader, shard_urls
 from train.augmentation import SteadyAverage
+from train.data import DataSettings, NoShards, make_loader, shard_urls
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import KernelVerdict, kernel_verdict
