@@ -75,6 +75,15 @@ def test_each_drawing_is_normalized_checked_and_measured(world, tmp_path) -> Non
     assert res["model"]["chamfer"] == pytest.approx((own["model"]["chamfer"] + sphere["model"]["chamfer"]) / 2)
 
 
+def test_denser_samples_lower_the_floor_of_two_samplings_of_one_surface(world) -> None:
+    plain = evaluate_images(world["ckpt"], world["images"], cad_check=False)
+    denser = evaluate_images(world["ckpt"], world["images"], cad_check=False, points=4 * plain["points"])
+    assert denser["points"] == 4 * plain["points"]
+    own = {r["image"]: r for r in plain["per_image"]}["a_own.png"]["model"]["chamfer"]
+    own_denser = {r["image"]: r for r in denser["per_image"]}["a_own.png"]["model"]["chamfer"]
+    assert own_denser < 0.75 * own  # about half the spacing: 1/sqrt(4)
+
+
 def test_command_line_prints_a_table_and_saves_json(world, capsys) -> None:
     assert main(["evaluate", "--checkpoint", str(world["ckpt"]), "--images", str(world["images"])]) == 0
     out = capsys.readouterr().out

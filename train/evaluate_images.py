@@ -145,6 +145,7 @@ def evaluate_images(
         "images": str(folder),
         "samples": len(rows),
         "with_ground_truth": measured,
+        "points": n_points,
         "fscore_taus": list(taus),
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         "model": {k: v / measured for k, v in sums["model"].items()} if measured else {},
