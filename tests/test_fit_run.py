@@ -10,13 +10,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from pipeline.core.settings_io import SettingError
-from train.augmentation import SteadyAverage
+from train.augmentation import SteadyAverage, steady_copies
 from train.data import DataSettings, NoShards, make_loader
 from train.errors import UsageError
 from train.evaluate import evaluate, format_table, mean_output, metric_names
 from train.fit import FitSettings, fit, learning_rate, load_checkpoint, load_run
 from train.losses.weights import LossWeights
-from train.predict import predict_params
 from train.templates import load_template
 
 
@@ -146,14 +145,17 @@ def test_evaluate_steady_answers_as_predict_does(shards, tmp_path):
     assert steady["template"] == plain["template"]
     assert steady["model"]["chamfer"] != plain["model"]["chamfer"]
     assert steady["blind"]["chamfer"] != plain["blind"]["chamfer"]  # the blind mean is the averaged network's
-    # the wrapper is predict's answer, with the view mask carried to every copy
+    # the mean of the network's answers to the 27 jittered copies, the view mask carried to each
     run = load_run(ckpt)
     images = torch.rand(2, 2, 1, 32, 32)
     mask = torch.tensor([[True, True], [True, False]])
     wrapped = SteadyAverage(run.model).eval()
-    torch.testing.assert_close(wrapped(images[:, :1]), predict_params(run, images[:, :1]))
-    alone = wrapped(images[1:, :1])
-    torch.testing.assert_close(wrapped(images, mask)[1:], alone)
+    with torch.no_grad():
+        copies = steady_copies(images[:, :1])
+        each = torch.stack([run.model(c) for c in copies])
+        torch.testing.assert_close(wrapped(images[:, :1]), each.mean(0))
+        assert not torch.allclose(each.mean(0), run.model(images[:, :1]))
+        torch.testing.assert_close(wrapped(images, mask)[1:], wrapped(images[1:, :1]))
 
 
 def test_evaluate_measures_at_a_requested_point_count(shards, tmp_path):

@@ -8,7 +8,6 @@ Works on 8-bit black-on-white sketches before inversion, so the border it brings
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -79,17 +78,10 @@ def steady_copies(images: torch.Tensor) -> torch.Tensor:
     return torch.stack(copies).reshape(len(copies), b, v, c, s, s)
 
 
-def steady_output(model: Callable[[torch.Tensor], torch.Tensor], images: torch.Tensor) -> torch.Tensor:
-    """``model``'s output for ``images (B, V, 1, S, S)``, averaged over :func:`steady_copies` (one batch)."""
-    copies = steady_copies(images)
-    k, b = copies.shape[:2]
-    out = model(copies.reshape(k * b, *copies.shape[2:]))
-    return out.reshape(k, b, *out.shape[1:]).mean(0)
-
-
 class SteadyAverage(torch.nn.Module):
     """``model`` answering as ``predict`` does: its output for ``images (B, V, 1, S, S)`` (or
-    ``(B, 1, S, S)``) averaged over :func:`steady_copies`, the view mask repeated for each copy."""
+    ``(B, 1, S, S)``) averaged over :func:`steady_copies` (one batch), the view mask repeated for
+    each copy."""
 
     def __init__(self, model: torch.nn.Module) -> None:
         super().__init__()
@@ -98,6 +90,9 @@ class SteadyAverage(torch.nn.Module):
     def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
         if images.dim() == 4:
             images = images.unsqueeze(1)
-        # steady_copies stacks copy-major: copy k of item b sits at k * B + b
-        mask = None if view_mask is None else view_mask.repeat(STEADY_COPIES, 1)
-        return steady_output(lambda x: self.model(x, mask), images)
+        copies = steady_copies(images)
+        k, b = copies.shape[:2]
+        # copy-major: copy k of item b sits at k * B + b, and so does its mask row
+        mask = None if view_mask is None else view_mask.repeat(k, 1)
+        out = self.model(copies.reshape(k * b, *copies.shape[2:]), mask)
+        return out.reshape(k, b, *out.shape[1:]).mean(0)

@@ -21,7 +21,7 @@ from pipeline.core.atomic import write_json, write_npy
 from pipeline.core.images import save_png
 from pipeline.core.settings_io import setting
 from pipeline.core.thumbnails import DEFAULT_COLOR, render_mesh
-from train.augmentation import STEADY_COPIES, steady_output
+from train.augmentation import STEADY_COPIES, SteadyAverage
 from train.data import to_network
 from train.errors import UsageError, one_line
 from train.export.bicubic import coons_to_bezier
@@ -265,9 +265,9 @@ def verdict_line(clean: bool, problems: list[str]) -> str:
 @torch.no_grad()
 def predict_params(run: TrainedRun, images: torch.Tensor) -> torch.Tensor:
     """The network's parameters for normalized sketches ``(B, V, 1, S, S)``: its output averaged
-    over small jitters of the sketch (``train.augmentation.steady_output``), so that resampling a
+    over small jitters of the sketch (``train.augmentation.SteadyAverage``), so that resampling a
     person's drawing (a rescan, a redraw at another size) moves the prediction little."""
-    return steady_output(run.model, images)
+    return SteadyAverage(run.model)(images)
 
 
 @torch.no_grad()
