@@ -226,11 +226,18 @@ def test_left_out_labels_are_off_for_every_model() -> None:
     car = load_template("car")
     labels = np.array(car.patch_labels)
     wheels = torch.from_numpy(np.isin(labels, ["wheel_front", "wheel_rear"]))
+    # the wheels are optional parts: a bare body's closing patches fill the floor where they sat
+    closing = torch.zeros(len(labels), dtype=torch.bool)
+    closing[[i for name in ("wheel_front", "wheel_rear") for i in car.closing_patches[name]]] = True
+    assert closing.any()
+    rest = ~wheels & ~closing
     plain, left = Objective(car, 200), Objective(car, 200, leave_out=("wheel_front", "wheel_rear"))
     for present in (None, ["body", "wheel_front", "wheel_rear"], ["body", "spoiler", "wheel_front", "wheel_rear"]):
-        assert plain.mask_for(present)[wheels].all()
+        assert plain.mask_for(present)[wheels].all() and not plain.mask_for(present)[closing].any()
         assert not left.mask_for(present)[wheels].any()
-        assert torch.equal(left.mask_for(present)[~wheels], plain.mask_for(present)[~wheels])
+        assert left.mask_for(present)[closing].all()  # left out counts as absent, as a bare model's
+        assert torch.equal(left.mask_for(present)[rest], plain.mask_for(present)[rest])
+    assert torch.equal(left.mask_for(None), plain.mask_for(["body", "cabin", "spoiler"]))
     assert not left.patch_mask([{}, {PRESENT_PARTS: None}], torch.device("cpu"))[:, wheels].any()
     # a template without optional parts gets a mask only when something is left out
     sphere = load_template("sphere24")

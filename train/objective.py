@@ -59,7 +59,9 @@ class Objective:
                 f"no patches labelled {', '.join(unknown)} in the template "
                 f"(its labels: {', '.join(sorted(set(template.patch_labels)))})"
             )
-        # patches no target has (real car bodies without wheels): off in every mask
+        # parts no target has (real car bodies without wheels): absent in every mask, so an
+        # optional part's closing patches close the surface where it was
+        self.leave_out = frozenset(leave_out)
         self.keep = torch.tensor([lab not in leave_out for lab in template.patch_labels], dtype=torch.bool)
         self.match_normals = match_normals  # λ of normal-aware matching in training (metrics: plain)
         self.side = max(2, math.ceil(math.sqrt(n_points / template.num_patches)))  # k² samples per patch
@@ -109,7 +111,8 @@ class Objective:
         """(B, P) bool: patches of optional parts a model lacks are off (e.g. engines), and the
         template's closing patches of a part are on only when the part is absent. A model
         without ``present_parts`` (a source without part labels) counts as having every part.
-        Patches of the labels left out (``leave_out``) are off for every model."""
+        Patches of the labels left out (``leave_out``) are off for every model; a left-out optional
+        part counts as absent, so its closing patches are on."""
         if not self.template.part_names:
             if bool(self.keep.all()):
                 return None
@@ -132,7 +135,7 @@ class Objective:
         them: every part counts as present then, as without labels."""
         if present is not None and not set(present) & set(self.template.patch_labels):
             present = None
-        parts = {p: present is None or p in present for p in self.template.part_names}
+        parts = {p: (present is None or p in present) and p not in self.leave_out for p in self.template.part_names}
         mask = torch.zeros(self.template.num_patches, dtype=torch.bool)
         mask[self.template.active_patches(parts)] = True
         return mask & self.keep

@@ -198,7 +198,9 @@ def iter_folder(root: Path, category: str) -> Iterator[ModelRef]:
 
 def procedural_source_dir(work_dir: Path, seed: int) -> Path:
     """Folder of the materialized procedural source models for this seed."""
-    key = stage_key("source", {"seed": seed, "defect_fraction": DEFECT_FRACTION})
+    from pipeline.shapes import SHAPES_VERSION
+
+    key = stage_key("source", {"seed": seed, "defect_fraction": DEFECT_FRACTION, "shapes": SHAPES_VERSION})
     return Path(work_dir) / key
 
 
