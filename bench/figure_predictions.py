@@ -2,11 +2,15 @@
 
 Usage: .venv/bin/python bench/figure_predictions.py --checkpoint RUN/best.pt --dataset DS --work-dir WORK
        --out docs/images/quality_<category>.png [--rows 4] [--blind] [--variant 0]
+       [--split all --blind-from TRAINING_DS --leave-out LABEL ...]   (meshes the network never saw)
 ``--variant K`` draws each row's sketch in pencil variant K (0: the dark line drawing, 1: the
 light, shaded one), and takes the blind mean over the same variant, as ``evaluate --variant`` does.
 Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``). ``--blind`` adds
 the sketch-blind baseline of ``train evaluate`` (the mean network output over the train split) as a
-last column, so a reader sees what the drawing changed in each prediction.
+last column, so a reader sees what the drawing changed in each prediction. For a folder of real
+meshes, as ``train evaluate`` measures them: ``--split all``, the blind mean from the run's own
+training data (``--blind-from``), and ``--leave-out`` the parts the targets lack (drawn as a model
+without them: the part's patches off, its closing patches on).
 """
 
 from __future__ import annotations
@@ -34,19 +38,31 @@ from train.objective import Objective
 
 @torch.no_grad()
 def figure(
-    checkpoint: str, dataset: str, work_dir: str, rows: int, size: int = 256, blind: bool = False, variant: int = 0
+    checkpoint: str,
+    dataset: str,
+    work_dir: str,
+    rows: int,
+    size: int = 256,
+    blind: bool = False,
+    variant: int = 0,
+    split: str = "test",
+    blind_from: str | None = None,
+    leave_out: tuple[str, ...] = (),
 ) -> np.ndarray:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
-    objective = Objective(template, 500)
+    objective = Objective(template, 500, leave_out=leave_out)
     cols = 4 if blind else 3
     mean_patches = None
     if blind:
         mean = blind_output(
-            model, dataset, s.category, DataSettings(eval_views=1, eval_variant=variant, image_size=s.image_size)
+            model,
+            blind_from or dataset,
+            s.category,
+            DataSettings(eval_views=1, eval_variant=variant, image_size=s.image_size),
         )
         mean_patches = template.patches_from_params(mean[None])[0]
-    urls = sorted(glob.glob(str(Path(dataset) / s.category / "test-*.tar")))
+    urls = sorted(glob.glob(str(Path(dataset) / s.category / f"{'*' if split == 'all' else split}-*.tar")))
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
@@ -56,7 +72,9 @@ def figure(
         patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
         keep = objective.mask_for(meta.get(PRESENT_PARTS))
         v, f = welded_mesh(patches[keep].double(), 12)
-        gt = sorted(glob.glob(str(Path(work_dir) / "prepare-*" / s.category / meta["model_id"] / MESH_FILE)))
+        # a folder source's work folder is <model_id>-<sha256[:12]>, a procedural one's the id
+        ids = [meta["model_id"], f"{meta['model_id']}-{(meta.get('source_sha256') or '')[:12]}"]
+        gt = sorted(p for i in ids for p in glob.glob(str(Path(work_dir) / "prepare-*" / s.category / i / MESH_FILE)))
         gv, gf = read_ply(gt[0])
         big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
         images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]
@@ -78,8 +96,22 @@ def main() -> None:
     ap.add_argument("--rows", type=int, default=4)
     ap.add_argument("--blind", action="store_true", help="add the sketch-blind mean shape as a last column")
     ap.add_argument("--variant", type=int, default=0, help="pencil variant drawn (0: dark lines, 1: light, shaded)")
+    ap.add_argument("--split", default="test", help="test, val, train, or all (every split: a folder of real meshes)")
+    ap.add_argument("--blind-from", default=None, help="dataset whose train split gives the blind mean (real meshes)")
+    ap.add_argument("--leave-out", nargs="*", default=(), help="parts the targets lack, drawn absent (TORCS: wheels)")
     a = ap.parse_args()
-    save_png(a.out, figure(a.checkpoint, a.dataset, a.work_dir, a.rows, blind=a.blind, variant=a.variant))
+    fig = figure(
+        a.checkpoint,
+        a.dataset,
+        a.work_dir,
+        a.rows,
+        blind=a.blind,
+        variant=a.variant,
+        split=a.split,
+        blind_from=a.blind_from,
+        leave_out=tuple(a.leave_out),
+    )
+    save_png(a.out, fig)
     print(a.out)
 
 

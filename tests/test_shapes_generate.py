@@ -132,21 +132,6 @@ def test_clean_shape_unchanged_by_defect_fraction():
             assert np.array_equal(pa.vertices, pb.vertices)
 
 
-def test_bare_cars_lack_their_wheels_and_nothing_else():
-    """A share of cars are body shells, as game assets ship them (TORCS); the rest of the shape
-    is the wheeled model's, so the share moves no other car."""
-    bare = [i for i in range(60) if not any(p.label.startswith("wheel") for p in clean("car", i).parts)]
-    assert 4 <= len(bare) <= 24  # bare_fraction 0.2 of 60
-    for i in bare[:3]:
-        shell = clean("car", i)
-        full = generate("car", i, seed=0, defect_fraction=0.0, bare_fraction=0.0)
-        kept = [p for p in full.parts if not p.label.startswith("wheel")]
-        assert len(kept) == len(full.parts) - 4  # both wheels of both axles
-        assert [p.label for p in shell.parts] == [p.label for p in kept]
-        assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(shell.parts, kept))
-    assert all(len(clean("airplane", i).parts) == len(generate("airplane", i, 0, 0.0, bare_fraction=1.0).parts) for i in range(4))
-
-
 def test_a_new_generator_writes_to_a_new_source_folder(monkeypatch):
     """Models of an older generator in a work folder are never read as this one's."""
     import pipeline.shapes

@@ -5,9 +5,6 @@ overlapping closed meshes (not unioned), like scraped CAD models; a fraction of 
 deliberate defects (see :mod:`pipeline.shapes.defects`). A fraction of cars, airplanes and
 bottles have detached parts, as real models do: wheels clear of the body, engines hanging under
 their pylons with a gap, a cap floating above the neck; they stay separate bodies after repair.
-A fraction of cars are bare body shells without wheels, as game and CAD assets often ship them
-(the game adds its own wheels; the TORCS bodies are such), so a drawing without wheels is one the
-network has seen.
 """
 
 from __future__ import annotations
@@ -23,7 +20,7 @@ from pipeline.shapes.model import Cuboid, Part, ProceduralModel, cuboid_of
 
 # Bumped whenever a generator's output changes: it keys the folder the models are written to,
 # so a work folder made by an older generator is never read as this one's models.
-SHAPES_VERSION = 2
+SHAPES_VERSION = 1
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
 
@@ -41,22 +38,14 @@ _BUILDERS: dict[str, Callable[[np.random.Generator, bool], list[Part]]] = {
 
 
 DETACHABLE = ("airplane", "bottle", "car")
-# Parts a bare model of the category lacks (both sides of a mirrored pair): the body shell alone.
-BARE_DROPS: dict[str, tuple[str, ...]] = {"car": ("wheel_front", "wheel_rear")}
 
 
 def generate(
-    category: str,
-    index: int,
-    seed: int = 0,
-    defect_fraction: float = 0.25,
-    detached_fraction: float = 0.3,
-    bare_fraction: float = 0.2,
+    category: str, index: int, seed: int = 0, defect_fraction: float = 0.25, detached_fraction: float = 0.3
 ) -> ProceduralModel:
     """Model ``index`` of ``category``: same (seed, category, index) gives identical arrays.
 
     ``detached_fraction``: probability that a model of a DETACHABLE category has detached parts.
-    ``bare_fraction``: probability that a model of a category in BARE_DROPS lacks those parts.
     """
     if category not in _BUILDERS:
         raise ValueError(f"unknown category {category!r}; expected one of {CATEGORIES}")
@@ -64,14 +53,10 @@ def generate(
     # Its own stream, drawn after the shape's, so the attached variant of a shape never changes.
     detached = category in DETACHABLE and rng_for(seed, "shapes-detached", category, index).random() < detached_fraction
     parts = _BUILDERS[category](shape_rng, detached)
-    # Its own stream too: dropping parts leaves the rest of the shape as it was.
-    if category in BARE_DROPS and rng_for(seed, "shapes-bare", category, index).random() < bare_fraction:
-        drop = {f"{name}{side}" for name in BARE_DROPS[category] for side in ("", "_r", "_l")}
-        parts = [p for p in parts if p.label not in drop]
     # A separate stream for defects, so changing defect_fraction never changes the clean shape.
     defects = apply_defects(parts, rng_for(seed, "shapes-defects", category, index), defect_fraction)
     cuboids = [cuboid_of(p) for p in parts]
     return ProceduralModel(category, int(index), f"{int(index):05d}", int(seed), parts, cuboids, defects, detached)
 
 
-__all__ = ["BARE_DROPS", "CATEGORIES", "DETACHABLE", "SHAPES_VERSION", "Cuboid", "Part", "ProceduralModel", "generate"]
+__all__ = ["CATEGORIES", "DETACHABLE", "SHAPES_VERSION", "Cuboid", "Part", "ProceduralModel", "generate"]
