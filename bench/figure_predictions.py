@@ -26,14 +26,15 @@ import torch
 import webdataset as wds
 
 from pipeline.core.images import contact_sheet, save_png
-from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
+from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS, SPLITS, shard_glob
 from pipeline.core.thumbnails import render_mesh
 from pipeline.sources.mesh_io import read_ply
-from train.data import DataSettings, read_png, sketch_table, to_network, variant_member
+from train.data import DataSettings, read_png, shard_urls, sketch_table, to_network, variant_member
 from train.evaluate import blind_output
 from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
 from train.objective import Objective
+from workflows.listing import work_id
 
 
 @torch.no_grad()
@@ -62,7 +63,11 @@ def figure(
             DataSettings(eval_views=1, eval_variant=variant, image_size=s.image_size),
         )
         mean_patches = template.patches_from_params(mean[None])[0]
-    urls = sorted(glob.glob(str(Path(dataset) / s.category / f"{'*' if split == 'all' else split}-*.tar")))
+    # the shard lists evaluate reads, with its errors naming what is missing
+    splits = (
+        [n for n in SPLITS if glob.glob(str(Path(dataset) / s.category / shard_glob(n)))] if split == "all" else [split]
+    )
+    urls = [u for n in splits or [split] for u in shard_urls(dataset, s.category, n)]
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
@@ -72,9 +77,14 @@ def figure(
         patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
         keep = objective.mask_for(meta.get(PRESENT_PARTS))
         v, f = welded_mesh(patches[keep].double(), 12)
-        # a folder source's work folder is <model_id>-<sha256[:12]>, a procedural one's the id
-        ids = [meta["model_id"], f"{meta['model_id']}-{(meta.get('source_sha256') or '')[:12]}"]
-        gt = sorted(p for i in ids for p in glob.glob(str(Path(work_dir) / "prepare-*" / s.category / i / MESH_FILE)))
+        # a procedural model's work folder is its id, a folder source's its work id
+        ids = [meta["model_id"]] + (
+            [work_id(meta["model_id"], meta["source_sha256"])] if meta.get("source_sha256") else []
+        )
+        where = [Path(work_dir) / "prepare-*" / s.category / i / MESH_FILE for i in ids]
+        gt = sorted(p for w in where for p in glob.glob(str(w)))
+        if not gt:
+            raise SystemExit(f"{meta['key']}: no prepared mesh at {' or '.join(map(str, where))} (--work-dir)")
         gv, gf = read_ply(gt[0])
         big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
         images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]
