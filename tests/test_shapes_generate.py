@@ -83,6 +83,31 @@ def test_optional_parts_vary():
         assert len(labels[c]) >= 2, c  # optional parts come and go
 
 
+def _race_body(model) -> bool:
+    """Wider than half its length, and widest over a wheel (flared arches), not mid-car."""
+    body = next(p.vertices for p in model.parts if p.label == "body")
+    length = np.ptp(body[:, 2])
+    wheel_z = np.mean([p.vertices[:, 2].mean() for p in model.parts if p.label.startswith("wheel_front")])
+    half_width = lambda z: np.abs(body[np.abs(body[:, 2] - z) < 0.03 * length, 0]).max()  # noqa: E731
+    return np.ptp(body[:, 0]) > 0.5 * length and half_width(wheel_z) > 1.04 * half_width(body[:, 2].mean())
+
+
+def _fighter(model) -> bool:
+    """No engines under the wings, and a long wing root (a delta's) swept well back."""
+    labels = {p.label for p in model.parts}
+    wing = next(p.vertices for p in model.parts if p.label == "wing_r")
+    fuselage = next(p.vertices for p in model.parts if p.label == "fuselage")
+    root = wing[wing[:, 0] < wing[:, 0].min() + 0.01]
+    return not any(lab.startswith("engine") for lab in labels) and np.ptp(root[:, 2]) > 0.3 * np.ptp(fuselage[:, 2])
+
+
+def test_race_bodies_and_fighters_are_a_fifth_of_their_categories():
+    # the real-mesh corpora are race bodies (TORCS) and fighters (GL-117): the procedural sets hold both
+    races = sum(_race_body(clean("car", i)) for i in range(60))
+    fighters = sum(_fighter(clean("airplane", i)) for i in range(60))
+    assert 5 <= races <= 20 and 5 <= fighters <= 20, (races, fighters)
+
+
 def test_defect_fraction_respected_and_listed():
     n = 80
     damaged = [generate(CATEGORIES[i % 8], i, seed=1, defect_fraction=0.25) for i in range(n)]

@@ -9,6 +9,7 @@ from pipeline.shapes import primitives as pr
 from pipeline.shapes.model import Part, make_part, mirrored_pair
 
 GAP = 0.035  # detached engines: clearance between pylon and nacelle, in fuselage lengths
+FIGHTER_FRACTION = 0.2  # swept-wing fighters with their engines inside
 
 
 def _fuselage(
@@ -78,12 +79,11 @@ def _nacelle(center: np.ndarray, length: float, radius: float, k: int = 20) -> p
 
 
 def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
+    # Every number is drawn before any mesh is built, in the order the airliners always drew them,
+    # so the fighters (drawn last) leave every other airplane as it was.
     L = rng.uniform(1.3, 1.7)
     R = L * rng.uniform(0.045, 0.075)
-    parts = [
-        make_part("fuselage", _fuselage(L, R, rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.35), rng.uniform(0.2, 0.8)))
-    ]
-
+    nose, tail, upsweep = rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.35), rng.uniform(0.2, 0.8)
     # Wings: low or high mounted, swept, tapered, with dihedral.
     span = L * rng.uniform(0.4, 0.62)
     root_chord = L * rng.uniform(0.16, 0.3)
@@ -92,29 +92,16 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     dihedral = rng.uniform(-2.0, 7.0)
     wing_y = R * rng.choice([-0.55, 0.0, 0.6])
     wing_z = -L * rng.uniform(0.0, 0.12) - root_chord * 0.3
-    root_le = np.array([0.0, wing_y, wing_z])
-    parts += mirrored_pair("wing", _wing(root_le, span, root_chord, taper, sweep, dihedral, rng.uniform(0.08, 0.14)))
-
+    wing_t = rng.uniform(0.08, 0.14)
     # Tail: fin at x = 0, tailplane either at the fuselage (conventional) or on top of the fin (T-tail).
     fin_h = L * rng.uniform(0.12, 0.2)
     fin_chord = L * rng.uniform(0.1, 0.16)
     fin_sweep = rng.uniform(25.0, 50.0)
-    fin_le = np.array([0.0, R * 0.5, L / 2 - fin_chord * 1.05 - 0.02 * L])
-    parts.append(make_part("vertical_tail", _fin(fin_le, fin_h, fin_chord, rng.uniform(0.35, 0.7), fin_sweep, 0.1)))
+    fin_taper = rng.uniform(0.35, 0.7)
     t_tail = rng.random() < 0.25
     hs_span = span * rng.uniform(0.25, 0.4)
     hs_chord = fin_chord * rng.uniform(0.7, 1.0)
-    if t_tail:
-        hs_le = fin_le + np.array([0.0, fin_h * 0.95, fin_h * np.tan(np.radians(fin_sweep))])
-    else:
-        hs_le = np.array([0.0, R * 0.3, L / 2 - hs_chord * 1.1 - 0.02 * L])
-    parts += mirrored_pair(
-        "horizontal_tail",
-        _wing(
-            hs_le, hs_span, hs_chord, rng.uniform(0.4, 0.7), rng.uniform(10.0, 35.0), rng.uniform(0.0, 6.0), 0.09, n=5
-        ),
-    )
-
+    hs_taper, hs_sweep, hs_dihedral = rng.uniform(0.4, 0.7), rng.uniform(10.0, 35.0), rng.uniform(0.0, 6.0)
     # Engines under the wings: 0, 2 or 4.
     n_eng = int(rng.choice([0, 2, 4], p=[0.25, 0.55, 0.2]))
     if detached:
@@ -122,6 +109,46 @@ def build(rng: np.random.Generator, detached: bool = False) -> list[Part]:
     eng_r = R * rng.uniform(0.35, 0.55)
     eng_len = root_chord * rng.uniform(0.6, 0.9)
     stations = {0: [], 2: [rng.uniform(0.28, 0.4)], 4: [rng.uniform(0.22, 0.3), rng.uniform(0.5, 0.62)]}[n_eng]
+    if rng.random() < FIGHTER_FRACTION:
+        # Fighters (GL-117-like): a long pointed nose, thin short-span wings swept far back at
+        # mid height, a swept fin and a small tailplane at the fuselage, engines inside.
+        R = L * rng.uniform(0.05, 0.075)
+        nose, tail, upsweep = rng.uniform(0.2, 0.32), rng.uniform(0.12, 0.22), rng.uniform(0.0, 0.3)
+        span = L * rng.uniform(0.28, 0.42)
+        root_chord = L * rng.uniform(0.32, 0.48)
+        taper = rng.uniform(0.08, 0.3)
+        # a delta-like planform: the leading edge swept so that the trailing edge is about straight
+        sweep = float(np.degrees(np.arctan(root_chord * (1 - taper) * rng.uniform(0.8, 1.1) / span)))
+        dihedral = rng.uniform(-5.0, 1.0)
+        wing_y = 0.0
+        wing_t = rng.uniform(0.04, 0.07)
+        fin_h = L * rng.uniform(0.12, 0.18)
+        fin_chord = L * rng.uniform(0.12, 0.2)
+        fin_sweep = rng.uniform(40.0, 58.0)
+        t_tail = False
+        hs_span = span * rng.uniform(0.4, 0.6)
+        hs_chord = fin_chord * rng.uniform(0.8, 1.1)
+        # the wing's root ends just ahead of the tailplane's
+        wing_z = L / 2 - 0.02 * L - hs_chord * 1.15 - root_chord - L * rng.uniform(0.0, 0.05)
+        hs_sweep, hs_dihedral = rng.uniform(30.0, 50.0), rng.uniform(-4.0, 0.0)
+        eng_len = root_chord * rng.uniform(0.4, 0.6)
+        # attached: engines inside; detached: one pair of stores out on the short wing, where they
+        # clear the fuselage (at an airliner's inner stations they would touch it and prepare as one body)
+        stations = [0.6] if detached else []
+
+    parts = [make_part("fuselage", _fuselage(L, R, nose, tail, upsweep))]
+    root_le = np.array([0.0, wing_y, wing_z])
+    parts += mirrored_pair("wing", _wing(root_le, span, root_chord, taper, sweep, dihedral, wing_t))
+    fin_le = np.array([0.0, R * 0.5, L / 2 - fin_chord * 1.05 - 0.02 * L])
+    parts.append(make_part("vertical_tail", _fin(fin_le, fin_h, fin_chord, fin_taper, fin_sweep, 0.1)))
+    if t_tail:
+        hs_le = fin_le + np.array([0.0, fin_h * 0.95, fin_h * np.tan(np.radians(fin_sweep))])
+    else:
+        hs_le = np.array([0.0, R * 0.3, L / 2 - hs_chord * 1.1 - 0.02 * L])
+    parts += mirrored_pair(
+        "horizontal_tail", _wing(hs_le, hs_span, hs_chord, hs_taper, hs_sweep, hs_dihedral, 0.09, n=5)
+    )
+
     for j, f in enumerate(stations):
         x = span * f
         le_z = wing_z + x * np.tan(np.radians(sweep))
