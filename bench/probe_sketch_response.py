@@ -17,15 +17,13 @@ Usage: .venv/bin/python bench/probe_sketch_response.py --checkpoint RUN/best.pt 
 from __future__ import annotations
 
 import argparse
-import glob
 import json
-from pathlib import Path
 
 import numpy as np
 import torch
 import webdataset as wds
 
-from train.data import read_png, sketch_table, to_network, variant_member
+from train.data import read_png, shard_urls, sketch_table, splits_with_shards, to_network, variant_member
 from train.fit import load_run
 
 
@@ -33,7 +31,7 @@ from train.fit import load_run
 def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64, variant: int = 0) -> dict[str, float]:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
-    urls = sorted(glob.glob(str(Path(dataset) / s.category / f"{split}-*.tar")))
+    urls = [u for name in splits_with_shards(dataset, s.category, split) for u in shard_urls(dataset, s.category, name)]
     # view 0 in variant K / view 0 in the next variant / view 1 in variant K
     images = {"v0a": [], "v0b": [], "v1a": []}
     for raw in wds.WebDataset(urls, shardshuffle=False):
@@ -77,7 +75,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--dataset", required=True)
-    ap.add_argument("--split", default="test")
+    ap.add_argument("--split", default="test", help="train, val, test, or all (every split the dataset has)")
     ap.add_argument("--variant", type=int, default=0, help="pencil variant read (0: dark lines, 1: light, shaded)")
     a = ap.parse_args()
     torch.set_num_threads(1)

@@ -10,7 +10,7 @@ from fixtures_shards import write_fixture_shards  # noqa: E402
 
 from pipeline.core.errors import ModelError
 from train.augmentation import Jitter, jitter_image
-from train.data import DataSettings, ShardStream, make_loader, shard_urls
+from train.data import DataSettings, ShardStream, make_loader, shard_urls, splits_with_shards
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +62,18 @@ def test_eval_is_single_deterministic_pass(shards):
 def test_missing_split_names_folder(tmp_path):
     with pytest.raises(ModelError, match="no train"):
         shard_urls(tmp_path, "knife", "train")
+
+
+def test_all_splits_are_those_with_shards(shards, tmp_path):
+    assert splits_with_shards(shards, "knife", "all") == ["train", "val", "test"]
+    folder = tmp_path / "knife"
+    folder.mkdir()
+    (folder / "test-00000.tar").write_bytes(b"")  # a folder of real meshes may hold one split only
+    assert splits_with_shards(tmp_path, "knife", "all") == ["test"]
+    with pytest.raises(ModelError, match="no val"):
+        splits_with_shards(tmp_path, "knife", "val")
+    with pytest.raises(ModelError, match="no category 'mug'"):
+        splits_with_shards(tmp_path, "mug", "all")
 
 
 def test_jitter_keeps_paper_white_and_flip_mirrors():

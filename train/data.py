@@ -30,6 +30,7 @@ from pipeline.core.schema import (
     META_MEMBER,
     POINT_PARTS_MEMBER,
     POINTS_MEMBER,
+    SPLITS,
     shard_glob,
     sketch_view_variant,
 )
@@ -93,6 +94,27 @@ def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     if not urls:
         raise NoShards(folder, f"no {shard_glob(split)} shards")
     return urls
+
+
+ALL_SPLITS = "all"  # every split the dataset has, as one set (evaluate --split all)
+
+
+def splits_with_shards(dataset: str | Path, category: str, split: str) -> list[str]:
+    """``[split]``, or for ``ALL_SPLITS`` every split that has shards, in SPLITS order; raises
+    NoShards naming what is missing when none has (or when ``split`` has none)."""
+    if split != ALL_SPLITS:
+        shard_urls(dataset, category, split)
+        return [split]
+    found, missing = [], None
+    for name in SPLITS:
+        try:
+            shard_urls(dataset, category, name)
+            found.append(name)
+        except NoShards as exc:
+            missing = exc
+    if not found:
+        raise missing
+    return found
 
 
 def shard_framing(dataset: str | Path, category: str, image_size: int, limit: int = 256) -> Framing:

@@ -28,7 +28,7 @@ from pipeline.core.atomic import write_json
 from pipeline.core.schema import SPLITS
 from pipeline.core.settings_io import setting
 from train.augmentation import SteadyAverage
-from train.data import DataSettings, NoShards, make_loader, shard_urls
+from train.data import ALL_SPLITS, DataSettings, make_loader, splits_with_shards
 from train.errors import UsageError
 from train.export.bicubic import coons_to_bezier
 from train.export.kernel_check import KernelVerdict, kernel_verdict
@@ -41,7 +41,6 @@ from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
 from train.mirror_average import mirror_averaged
 from train.objective import Objective
 
-ALL_SPLITS = "all"  # --split all: every split the dataset has, as one set
 LOSS_METRICS = ("chamfer", "normal", "flat", "template_normal", "collision")
 PEER_METRICS = ("chamfer_sq_x1000", "normal_consistency")
 
@@ -283,18 +282,7 @@ def evaluate(
 
 def _batches(dataset: str | Path, category: str, split: str, data: DataSettings, batch_size: int):
     """The evaluation batches of one split, or of every split with shards (``split`` "all")."""
-    splits, missing = [split], None
-    if split == ALL_SPLITS:
-        splits = []
-        for name in SPLITS:
-            try:
-                shard_urls(dataset, category, name)
-                splits.append(name)
-            except NoShards as exc:
-                missing = exc
-        if not splits:
-            raise missing  # names the folder and what is missing from it
-    for name in splits:
+    for name in splits_with_shards(dataset, category, split):
         yield from make_loader(dataset, category, name, data, 0, batch_size, train=False)
 
 
