@@ -30,7 +30,8 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "airplane": (
         dict(ema=0.999, contrast=1.0, steps=6000, **_SLOW_OUTPUT, **_COSINE),
         {"collision": 0.3},
-        "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 0.3, weight average 0.999",
+        "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 0.3, weight average 0.999; "
+        "its quality row's data is built with view_area_fraction 0.8 (views that show the wings)",
     ),
     "bathtub": (
         dict(contrast=0.1, steps=5000, **_SLOW_OUTPUT, **_COSINE),
