@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,8 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from pipeline.shapes import CATEGORIES, generate
+from pipeline.shapes import CATEGORIES, SHAPES_VERSION, generate
+from pipeline.sources.layouts import DEFECT_FRACTION
 
 N_PER = 3
 
@@ -165,6 +167,32 @@ def test_a_new_generator_writes_to_a_new_source_folder(monkeypatch):
     now = procedural_source_dir(Path("w"), 0)
     monkeypatch.setattr(pipeline.shapes, "SHAPES_VERSION", pipeline.shapes.SHAPES_VERSION + 1)
     assert procedural_source_dir(Path("w"), 0) != now
+
+
+# What each SHAPES_VERSION generates, fingerprinted: the version keys the procedural source folder,
+# so a generator change that moves any vertex without a new version would let a work folder's
+# cached models of the old generator pass for the new one's. Vertices are rounded to 1e-5 so
+# that last-bit differences between CPUs' sin/cos do not count.
+SHAPES_FINGERPRINTS = {3: "121d5a80394e641e"}
+
+
+def _generator_fingerprint(count: int = 40) -> str:
+    h = hashlib.sha256()
+    for category in CATEGORIES:
+        for index in range(count):
+            for part in generate(category, index, seed=0, defect_fraction=DEFECT_FRACTION).parts:
+                h.update(part.label.encode())
+                h.update((np.round(part.vertices.astype(np.float64), 5) + 0.0).tobytes())  # + 0.0: no -0.0
+                h.update(np.asarray(part.faces, np.int64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def test_generator_output_belongs_to_its_version():
+    found = _generator_fingerprint()
+    assert SHAPES_FINGERPRINTS.get(SHAPES_VERSION) == found, (
+        f"the procedural models changed (fingerprint {found}): raise SHAPES_VERSION in "
+        f"pipeline/shapes/__init__.py and add {{new version: {found!r}}} to SHAPES_FINGERPRINTS"
+    )
 
 
 def test_unknown_category():

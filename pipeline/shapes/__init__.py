@@ -21,6 +21,7 @@ from pipeline.shapes.model import Cuboid, Part, ProceduralModel, cuboid_of
 # Bumped whenever a generator's output changes: it keys the folder the models are written to,
 # so a work folder made by an older generator is never read as this one's models. (3: race bodies
 # and fighters; 2 was an experiment that did not land, whose folders may linger on a machine.)
+# tests/test_shapes_generate.py holds each version's fingerprint and fails when output and version disagree.
 SHAPES_VERSION = 3
 
 CATEGORIES = ("airplane", "bathtub", "bottle", "car", "guitar", "gun", "knife", "mug")
