@@ -26,7 +26,7 @@ import torch
 import webdataset as wds
 
 from pipeline.core.images import contact_sheet, save_png
-from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS, SPLITS, shard_glob
+from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from pipeline.sources.mesh_io import read_ply
 from train.data import DataSettings, read_png, shard_urls, sketch_table, to_network, variant_member
@@ -63,11 +63,7 @@ def figure(
             DataSettings(eval_views=1, eval_variant=variant, image_size=s.image_size),
         )
         mean_patches = template.patches_from_params(mean[None])[0]
-    # the shard lists evaluate reads, with its errors naming what is missing
-    splits = (
-        [n for n in SPLITS if glob.glob(str(Path(dataset) / s.category / shard_glob(n)))] if split == "all" else [split]
-    )
-    urls = [u for n in splits or [split] for u in shard_urls(dataset, s.category, n)]
+    urls = shard_urls(dataset, s.category, split)  # the shards evaluate reads ("all": every split's)
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 import webdataset as wds
 
-from train.data import read_png, shard_urls, sketch_table, splits_with_shards, to_network, variant_member
+from train.data import read_png, shard_urls, sketch_table, to_network, variant_member
 from train.fit import load_run
 
 
@@ -31,7 +31,7 @@ from train.fit import load_run
 def response(checkpoint: str, dataset: str, split: str = "test", limit: int = 64, variant: int = 0) -> dict[str, float]:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
-    urls = [u for name in splits_with_shards(dataset, s.category, split) for u in shard_urls(dataset, s.category, name)]
+    urls = shard_urls(dataset, s.category, split)
     # view 0 in variant K / view 0 in the next variant / view 1 in variant K
     images = {"v0a": [], "v0b": [], "v1a": []}
     for raw in wds.WebDataset(urls, shardshuffle=False):

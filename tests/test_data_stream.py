@@ -70,6 +70,9 @@ def test_all_splits_are_those_with_shards(shards, tmp_path):
     folder.mkdir()
     (folder / "test-00000.tar").write_bytes(b"")  # a folder of real meshes may hold one split only
     assert splits_with_shards(tmp_path, "knife", "all") == ["test"]
+    assert shard_urls(tmp_path, "knife", "all") == [str(folder / "test-00000.tar")]
+    every = shard_urls(shards, "knife", "all")
+    assert every == sum((shard_urls(shards, "knife", n) for n in ("train", "val", "test")), [])
     with pytest.raises(ModelError, match="no val"):
         splits_with_shards(tmp_path, "knife", "val")
     with pytest.raises(ModelError, match="no category 'mug'"):

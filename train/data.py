@@ -76,9 +76,35 @@ class NoShards(UsageError, ModelError):
         ModelError.__init__(self, path, reason)
 
 
+ALL_SPLITS = "all"  # every split the dataset has, as one set (evaluate --split all)
+
+
 def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
-    """The split's shard files, sorted; raises NoShards (a UsageError and a ModelError) naming
-    what is missing: the dataset folder, the category in it, or the split's shards."""
+    """The split's shard files, sorted (for ``ALL_SPLITS``: those of every split that has shards,
+    in SPLITS order); raises NoShards (a UsageError and a ModelError) naming what is missing: the
+    dataset folder, the category in it, or the split's shards."""
+    return [u for name in splits_with_shards(dataset, category, split) for u in _one_split(dataset, category, name)]
+
+
+def splits_with_shards(dataset: str | Path, category: str, split: str) -> list[str]:
+    """``[split]``, or for ``ALL_SPLITS`` every split that has shards, in SPLITS order; raises
+    NoShards naming what is missing when none has (or when ``split`` has none)."""
+    if split != ALL_SPLITS:
+        _one_split(dataset, category, split)
+        return [split]
+    found, missing = [], None
+    for name in SPLITS:
+        try:
+            _one_split(dataset, category, name)
+            found.append(name)
+        except NoShards as exc:
+            missing = exc
+    if not found:
+        raise missing
+    return found
+
+
+def _one_split(dataset: str | Path, category: str, split: str) -> list[str]:
     root = Path(dataset)
     if not root.is_dir():
         raise NoShards(root, "the dataset folder does not exist" if not root.exists() else "not a folder")
@@ -94,27 +120,6 @@ def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     if not urls:
         raise NoShards(folder, f"no {shard_glob(split)} shards")
     return urls
-
-
-ALL_SPLITS = "all"  # every split the dataset has, as one set (evaluate --split all)
-
-
-def splits_with_shards(dataset: str | Path, category: str, split: str) -> list[str]:
-    """``[split]``, or for ``ALL_SPLITS`` every split that has shards, in SPLITS order; raises
-    NoShards naming what is missing when none has (or when ``split`` has none)."""
-    if split != ALL_SPLITS:
-        shard_urls(dataset, category, split)
-        return [split]
-    found, missing = [], None
-    for name in SPLITS:
-        try:
-            shard_urls(dataset, category, name)
-            found.append(name)
-        except NoShards as exc:
-            missing = exc
-    if not found:
-        raise missing
-    return found
 
 
 def shard_framing(dataset: str | Path, category: str, image_size: int, limit: int = 256) -> Framing:
