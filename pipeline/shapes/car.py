@@ -32,7 +32,7 @@ def _body(
     round_ = 0.8 + 0.2 * np.sqrt(end)
     z = -length / 2 + t * length
     # Flared arches: the body widens over each wheel (a Gaussian bump along z).
-    widen = 1 + flare * sum(np.exp(-(((z - a) / (1.2 * arch_r)) ** 2)) for a in arches) if arches else np.ones(n)
+    widen = 1 + flare * sum((np.exp(-(((z - a) / (1.2 * arch_r)) ** 2)) for a in arches), np.zeros(n))
     rings = []
     for tt, tp, rr, ww in zip(t, top, round_, widen):
         half_h = (tp * rr) / 2
