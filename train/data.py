@@ -83,20 +83,24 @@ def shard_urls(dataset: str | Path, category: str, split: str) -> list[str]:
     """The split's shard files, sorted (for ``ALL_SPLITS``: those of every split that has shards,
     in SPLITS order); raises NoShards (a UsageError and a ModelError) naming what is missing: the
     dataset folder, the category in it, or the split's shards."""
-    return [u for name in splits_with_shards(dataset, category, split) for u in _one_split(dataset, category, name)]
+    return [u for urls in _shards_by_split(dataset, category, split).values() for u in urls]
 
 
 def splits_with_shards(dataset: str | Path, category: str, split: str) -> list[str]:
     """``[split]``, or for ``ALL_SPLITS`` every split that has shards, in SPLITS order; raises
     NoShards naming what is missing when none has (or when ``split`` has none)."""
+    return list(_shards_by_split(dataset, category, split))
+
+
+def _shards_by_split(dataset: str | Path, category: str, split: str) -> dict[str, list[str]]:
+    """{split name: its shard files} for ``split``, or for ``ALL_SPLITS`` each split that has
+    shards (one glob a split); NoShards as ``shard_urls`` says."""
     if split != ALL_SPLITS:
-        _one_split(dataset, category, split)
-        return [split]
-    found, missing = [], None
+        return {split: _one_split(dataset, category, split)}
+    found, missing = {}, None
     for name in SPLITS:
         try:
-            _one_split(dataset, category, name)
-            found.append(name)
+            found[name] = _one_split(dataset, category, name)
         except NoShards as exc:
             missing = exc
     if not found:
