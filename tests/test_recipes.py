@@ -20,7 +20,7 @@ def test_every_category_has_a_recipe() -> None:
 
 def test_recipes_hold_their_rows_settings() -> None:
     knife = recipe("knife")
-    assert (knife.contrast, knife.lr_schedule, knife.steps, knife.lr) == (1.0, "cosine", 3000, 1e-4)
+    assert (knife.contrast, knife.lr_schedule, knife.steps, knife.lr) == (1.0, "cosine", 6000, 1e-4)
     assert knife.weights.template_normal == pytest.approx(1e-4)  # from the template file
     plane = recipe("airplane")
     assert (plane.lr, plane.output_lr_scale, plane.ema, plane.lr_schedule, plane.weights.collision) == (

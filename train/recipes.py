@@ -51,9 +51,9 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     ),
     "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "knife": (
-        dict(contrast=1.0, steps=3000, **_COSINE),
+        dict(contrast=1.0, steps=6000, **_COSINE),
         _FOLD,
-        "contrast 1.0, cosine decay over 3,000 steps, fold term 1.0 (CAD-clean predictions)",
+        "contrast 1.0, cosine decay over 6,000 steps, fold term 1.0 (CAD-clean predictions)",
     ),
     "mug": (
         dict(contrast=0.1, output_lr_scale=0.3, steps=4000, **_COSINE),
