@@ -80,3 +80,6 @@ def test_help_lists_the_recipes(capsys) -> None:
         main(["fit", "--help"])
     out = capsys.readouterr().out
     assert "--recipe" in out and all(name in out for name in RECIPES)
+    # the step count comes from the recipe's fields (argparse wraps lines anywhere: compare without spaces)
+    flat = "".join(out.split())
+    assert "knife:contrast1.0,cosinedecay,foldterm1.0(CAD-cleanpredictions),6,000steps" in flat

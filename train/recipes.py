@@ -53,21 +53,22 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "knife": (
         dict(contrast=1.0, steps=6000, **_COSINE),
         _FOLD,
-        "contrast 1.0, cosine decay over 6,000 steps, fold term 1.0 (CAD-clean predictions)",
+        "contrast 1.0, cosine decay, fold term 1.0 (CAD-clean predictions)",
     ),
     "mug": (
         dict(contrast=0.1, output_lr_scale=0.3, steps=4000, **_COSINE),
         _FOLD,
-        "contrast 0.1, cosine decay, the output layer at 0.3 of the rate, fold term 1.0 (CAD-clean predictions, "
-        "and no seed whose patches cross)",
+        "contrast 0.1, cosine decay, the output layer at 0.3 of the rate, fold term 1.0 (CAD-clean predictions; "
+        "no crossing patches at three seeds)",
     ),
 }
 RECIPES: tuple[str, ...] = tuple(sorted(_RECIPES))
 
 
 def describe(name: str) -> str:
-    """One line for ``--help``."""
-    return _RECIPES[name][2]
+    """One line for ``--help``: what the recipe is, and its step count (read from its fields, so it cannot drift)."""
+    fields, _, what = _RECIPES[name]
+    return f"{what}, {fields['steps']:,} steps"
 
 
 def recipe(name: str, dataset: str = "", out: str = "") -> FitSettings:
