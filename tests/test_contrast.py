@@ -91,3 +91,30 @@ def test_a_run_with_the_contrastive_term_logs_it_and_rebuilds(shards, tmp_path):
     # off by default: no pair drawings are loaded and the column stays empty
     fit(FitSettings(**{**base, "out": str(tmp_path / "plain")}), progress=False)
     assert {r["contrast"] for r in csv.DictReader(open(tmp_path / "plain" / "log.csv"))} == {""}
+
+
+def test_a_run_with_the_pair_loss_alone_loads_the_pairs_and_learns_from_them(shards, tmp_path):
+    """``--pair-loss`` without the contrastive term: the loader still draws the pairs, and the
+    pair's drawings change what the run learns (against a run that draws the same pairs for a
+    contrastive term too small to move a weight)."""
+    torch.set_num_threads(1)
+    base = dict(
+        dataset=str(shards),
+        category="knife",
+        template="sphere24",
+        steps=2,
+        batch_size=3,
+        workers=0,
+        n_points=300,
+        image_size=32,
+        max_views=1,
+        encoder_width=8,
+        weights=LossWeights(collision=0.0),
+    )
+    paired = fit(FitSettings(**base, out=str(tmp_path / "paired"), pair_loss=1.0), progress=False)
+    plain = fit(FitSettings(**base, out=str(tmp_path / "plain"), contrast=1e-30), progress=False)
+    again = fit(FitSettings(**base, out=str(tmp_path / "again"), contrast=1e-30), progress=False)
+    assert plain["param_digest"] == again["param_digest"]  # the comparison is exact
+    assert load_run(tmp_path / "paired" / "checkpoint.pt").settings.pair_loss == 1.0
+    assert paired["param_digest"] != plain["param_digest"]
+    assert {r["contrast"] for r in csv.DictReader(open(tmp_path / "paired" / "log.csv"))} == {""}

@@ -300,6 +300,20 @@ def test_a_guarded_step_is_the_same_step() -> None:
     assert measure("airplane", guard=DivergenceGuard(CPU)) == measure("airplane")
 
 
+def test_the_pair_loss_teaches_the_second_drawing_like_the_first() -> None:
+    """``pair_loss``: the paper's loss on the pair's drawings too. With the pair drawn exactly as the
+    sample (and the hidden layers reading both in one pass) it adds the sample's loss once more."""
+    plain, _ = _step(_case("car"))
+    case = _case("car")
+    case["batch"]["pair_images"] = case["batch"]["images"][:, 0].clone()
+    doubled, _ = _step(case, pair_loss=1.0)
+    torch.testing.assert_close(doubled, 2 * plain, rtol=1e-5, atol=1e-7)
+    case = _case("car")
+    case["batch"]["pair_images"] = torch.flip(case["batch"]["images"][:, 0], dims=[-1])
+    other, _ = _step(case, pair_loss=0.5)
+    assert abs(float(other) - 1.5 * float(plain)) > 1e-6  # another drawing: its own loss
+
+
 @pytest.mark.usefixtures("search_as_on_a_gpu")  # the CPU's k-d tree refuses NaN points; torch's search does not
 def test_a_guarded_step_that_is_not_finite_leaves_the_weights_and_says_so_later() -> None:
     case = _case("car")

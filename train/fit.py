@@ -105,6 +105,11 @@ class FitSettings:
         "weight of the contrastive term on the encoder's codes (two drawings of one model "
         "encode alike; not in the paper; 0: off)",
     )
+    pair_loss: float = setting(
+        0.0,
+        "weight of the paper's loss on the second drawing of each sample (the one the contrastive "
+        "term reads), so each step teaches both drawings of its models (not in the paper; 0: off)",
+    )
     clip_grad: float = setting(
         0.0,
         "clip the gradient's global norm to this before each update (0: off; "
@@ -136,6 +141,11 @@ class FitSettings:
         "weight of the fit stage's targets taught to the encoder through a training-only linear "
         "readout of its codes, never through the output layer (not in the paper; 0: off; needs a "
         "--fit-patches dataset)",
+    )
+    init_encoder: str = setting(
+        "",
+        "a checkpoint (any category's, same --encoder-width) whose encoder and hidden layers start "
+        "this run; the output layer starts at the template as always (not in the paper; '': fresh weights)",
     )
     weights: LossWeights = LossWeights()
 
@@ -171,7 +181,7 @@ class FitSettings:
             _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
             "0 (off) or a decay between 0 and 1",
         )
-        for name in ("clip_grad", "contrast", "match_normals", "input_blur", "fit_readout"):
+        for name in ("clip_grad", "contrast", "pair_loss", "match_normals", "input_blur", "fit_readout"):
             value = getattr(self, name)
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
                 continue
@@ -548,6 +558,7 @@ def train_step(
     guard: DivergenceGuard | None = None,
     precision: str = "fp32",
     fit_readout: float = 0.0,
+    pair_loss: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One optimisation step of a :class:`TrainingNet` (or its DDP wrapper) on a loader batch at
     samples ``st``: forward, the loss, backward, update. Returns the batch loss and the per-item
@@ -565,15 +576,21 @@ def train_step(
     the loss and terms come back as device tensors (``fit`` reads them every ``--log-every``).
     ``precision`` "bf16" runs the network (not the loss) in bfloat16 autocast on a GPU.
     ``fit_readout`` > 0 adds the readout's fit term (a net with a readout, a fitted batch) as
-    "fit_readout"."""
+    "fit_readout". ``pair_loss`` > 0 (a batch with ``pair_images``) adds the terms of the pair's
+    drawings at that weight."""
     # host-to-device copies do not wait for the device (non_blocking; the loader pins its batches
     # on a GPU run), and the view mask stays on the host: the encoder reads it there
-    pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 else None
+    pair = batch["pair_images"].to(device, non_blocking=True) if contrast > 0 or pair_loss > 0 else None
     with network_autocast(device, precision):
-        out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair)
+        out = net(batch["images"].to(device, non_blocking=True), batch["view_mask"], pair, pair_loss > 0)
     out = {k: v.float() for k, v in out.items()}  # the loss's geometry stays fp32
     terms = objective.batch_terms(out["params"], batch, st, weights)
     loss = weighted_sum(terms, weights).mean()
+    if pair_loss > 0:  # the same targets and samples: the pair shows the same (mirrored alike) model
+        loss = (
+            loss
+            + pair_loss * weighted_sum(objective.batch_terms(out["pair_params"], batch, st, weights), weights).mean()
+        )
     if contrast > 0:
         terms["contrast"] = info_nce(out["codes"], out["pair_codes"])
         loss = loss + contrast * terms["contrast"].mean()
@@ -617,6 +634,21 @@ def fit(settings: FitSettings, progress: bool = True) -> dict:
     return result
 
 
+def _start_body_from(model: SketchToPatches, path: str) -> None:
+    """Copy the encoder and hidden layers of the network in checkpoint ``path`` into ``model``:
+    a sketch encoder already trained on another category. UsageError naming the file when its
+    body does not fit (another encoder width or input)."""
+    saved = load_checkpoint(path)["model"]
+    own = model.state_dict()
+    body = {k: v for k, v in saved.items() if k.startswith(("encoder.", "hidden.", "fields."))}
+    wrong = [k for k, v in body.items() if k not in own or own[k].shape != v.shape]
+    missing = [k for k in own if k.startswith(("encoder.", "hidden.")) and k not in body]
+    if wrong or missing:
+        what = f"{wrong[0]!r} does not fit" if wrong else f"it has no {missing[0]!r}"
+        raise UsageError(f"{path}: its network cannot start this one ({what}; same --encoder-width and --input-blur?)")
+    model.load_state_dict(body, strict=False)
+
+
 def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     out = Path(settings.out)
     if out.exists() and not out.is_dir():
@@ -638,6 +670,8 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     model = SketchToPatches(
         template.initial_params(), encoder_width=settings.encoder_width, basis=basis, input_blur=settings.input_blur
     )
+    if ckpt is None and settings.init_encoder:
+        _start_body_from(model, settings.init_encoder)
     model = place_network(model, info.device, settings.precision)
     trainee = TrainingNet(model, template.initial_params() if settings.fit_readout > 0 else None)
     optimizer = make_optimizer(trainee, settings.lr, info.device, settings.output_lr_scale, model.out)
@@ -661,7 +695,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         max_views=settings.max_views,
         n_points=settings.n_points,
         image_size=settings.image_size,
-        pair=settings.contrast > 0,
+        pair=settings.contrast > 0 or settings.pair_loss > 0,
     )
     if template.symmetry is not None:
         data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))
@@ -734,6 +768,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
                 guard,
                 settings.precision,
                 settings.fit_readout,
+                settings.pair_loss,
             )
             if log_step or keep_step:  # before anything is read, validated or saved (every rank alike)
                 guard.check()

@@ -148,15 +148,26 @@ class TrainingNet(nn.Module):
             self.readout.to(next(model.parameters()).device)
 
     def forward(
-        self, images: torch.Tensor, view_mask: torch.Tensor | None = None, pair_images: torch.Tensor | None = None
+        self,
+        images: torch.Tensor,
+        view_mask: torch.Tensor | None = None,
+        pair_images: torch.Tensor | None = None,
+        read_pair: bool = False,
     ) -> dict[str, torch.Tensor]:
-        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C),
-        and with a readout, "readout" (B, D): the readout's parameters from the same codes."""
+        """{"params" (B, D)} plus, with ``pair_images`` (B, 1, H, W), "codes" and "pair_codes" (B, C)
+        (and with ``read_pair``, "pair_params" (B, D): the pair's parameters, read in one pass of the
+        hidden layers with the sample's), and with a readout, "readout" (B, D): the readout's
+        parameters from the same codes."""
         m = self.model
         codes = m.encode(images, view_mask)
-        out = {"params": m.decode_latent(m.hidden[0](codes))}
-        if self.readout is not None:
-            out["readout"] = self.readout(codes)
+        out = {}
         if pair_images is not None:
             out["codes"], out["pair_codes"] = codes, m.encode(pair_images)
+        if read_pair and pair_images is not None:
+            both = m.decode_latent(m.hidden[0](torch.cat([codes, out["pair_codes"]])))
+            out["params"], out["pair_params"] = both[: len(codes)], both[len(codes) :]
+        else:
+            out["params"] = m.decode_latent(m.hidden[0](codes))
+        if self.readout is not None:
+            out["readout"] = self.readout(codes)
         return out
