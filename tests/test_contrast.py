@@ -9,13 +9,12 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import write_fixture_shards  # noqa: E402
+from fixtures_shards import tiny_run, write_fixture_shards  # noqa: E402
 
 from train.augmentation import Jitter
 from train.data import DataSettings, make_loader
 from train.fit import FitSettings, fit, load_run
 from train.losses.contrast import info_nce
-from train.losses.weights import LossWeights
 
 
 @pytest.fixture(scope="module")
@@ -67,22 +66,7 @@ def test_loader_pairs_each_sample_with_another_drawing_of_its_model(shards):
 
 def test_a_run_with_the_contrastive_term_logs_it_and_rebuilds(shards, tmp_path):
     out = tmp_path / "contrast"
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=3,
-        batch_size=3,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        log_every=1,
-        checkpoint_every=100,
-        encoder_width=16,
-        weights=LossWeights(collision=0.0),
-    )
+    base = tiny_run(shards, out, steps=3, batch_size=3, log_every=1, checkpoint_every=100, encoder_width=16)
     fit(FitSettings(**base, contrast=0.5), progress=False)
     rows = list(csv.DictReader(open(out / "log.csv")))
     assert len(rows) == 3 and all(float(r["contrast"]) > 0 for r in rows)
@@ -98,19 +82,8 @@ def test_a_run_with_the_pair_loss_alone_loads_the_pairs_and_learns_from_them(sha
     pair's drawings change what the run learns (against a run that draws the same pairs for a
     contrastive term too small to move a weight)."""
     torch.set_num_threads(1)
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        steps=2,
-        batch_size=3,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        encoder_width=8,
-        weights=LossWeights(collision=0.0),
-    )
+    base = tiny_run(shards, tmp_path, batch_size=3)
+    del base["out"]
     paired = fit(FitSettings(**base, out=str(tmp_path / "paired"), pair_loss=1.0), progress=False)
     plain = fit(FitSettings(**base, out=str(tmp_path / "plain"), contrast=1e-30), progress=False)
     again = fit(FitSettings(**base, out=str(tmp_path / "again"), contrast=1e-30), progress=False)

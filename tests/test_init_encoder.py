@@ -7,11 +7,10 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import write_fixture_shards  # noqa: E402
+from fixtures_shards import tiny_run, write_fixture_shards  # noqa: E402
 
 from train.errors import UsageError
 from train.fit import FitSettings, fit, load_checkpoint
-from train.losses.weights import LossWeights
 from train.templates import load_template
 
 
@@ -21,21 +20,7 @@ def shards(tmp_path_factory):
 
 
 def _settings(shards: Path, out: Path, **kw) -> FitSettings:
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=2,
-        batch_size=2,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        encoder_width=8,
-        weights=LossWeights(collision=0.0),
-    )
-    return FitSettings(**{**base, **kw})
+    return FitSettings(**tiny_run(shards, out, **kw))
 
 
 def test_a_run_starts_from_another_runs_encoder_with_its_own_output_layer(shards, tmp_path):

@@ -9,11 +9,10 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import write_fixture_shards  # noqa: E402
+from fixtures_shards import tiny_run, write_fixture_shards  # noqa: E402
 
 from pipeline.core.fit_settings import PatchFitSettings
 from train.fit import FitSettings, fit, load_checkpoint, load_run
-from train.losses.weights import LossWeights
 from train.model import BasisReadout, SketchToPatches
 from train.shape_basis import fitted_shapes, principal_basis
 from train.templates import load_template
@@ -80,21 +79,7 @@ def test_fits_of_training_models_differ_by_model(shards):
 def test_a_run_with_a_shape_basis_trains_resumes_and_loads(shards, tmp_path):
     torch.set_num_threads(1)
     out = tmp_path / "run"
-    s = FitSettings(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=2,
-        batch_size=2,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        encoder_width=8,
-        shape_basis=4,
-        weights=LossWeights(collision=0.0),
-    )
+    s = FitSettings(**tiny_run(shards, out, shape_basis=4))
     first = fit(s, progress=False)
     summary = json.loads((out / "shape_basis.json").read_text())
     assert summary["shapes"] == 4 and 1 <= summary["directions"] <= 3
