@@ -18,13 +18,12 @@ import torch
 import webdataset as wds
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import box_sketch, camera, write_fixture_shards  # noqa: E402
+from fixtures_shards import box_sketch, camera, tiny_run, write_fixture_shards  # noqa: E402
 
 from pipeline.core.schema import POINTS_MEMBER
 from train.cli import main
 from train.errors import UsageError
 from train.fit import FitSettings, fit, load_checkpoint, load_run, save_checkpoint
-from train.losses.weights import LossWeights
 from train.model import SketchToPatches
 from train.templates import load_template
 
@@ -55,23 +54,7 @@ def world(tmp_path_factory):
 
 
 def _settings(ds: Path, out: Path) -> dict:
-    return dict(
-        dataset=str(ds),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=2,
-        batch_size=2,
-        workers=0,
-        n_points=200,
-        image_size=32,
-        max_views=2,
-        encoder_width=8,
-        log_every=1,
-        checkpoint_every=100,
-        device="cpu",
-        weights=LossWeights(collision=0.0),
-    )
+    return tiny_run(ds, out, n_points=200, max_views=2, log_every=1, checkpoint_every=100, device="cpu")
 
 
 def fit_argv(ds: Path, out: Path, *extra: str) -> list[str]:

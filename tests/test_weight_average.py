@@ -7,10 +7,9 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import write_fixture_shards  # noqa: E402
+from fixtures_shards import tiny_run, write_fixture_shards  # noqa: E402
 
 from train.fit import FitSettings, fit, load_checkpoint, load_run
-from train.losses.weights import LossWeights
 from train.weight_average import WeightAverage
 
 
@@ -43,24 +42,8 @@ def shards(tmp_path_factory):
 
 def test_a_run_hands_out_the_average_and_resumes_both(shards, tmp_path):
     out = tmp_path / "ema"
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        batch_size=2,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=1,
-        log_every=1,
-        checkpoint_every=1,
-        val_every=1,
-        encoder_width=16,
-        weights=LossWeights(collision=0.0),
-        ema=0.2,
-    )
-    fit(FitSettings(**base, steps=2), progress=False)
+    base = tiny_run(shards, out, log_every=1, checkpoint_every=1, val_every=1, encoder_width=16, ema=0.2)
+    fit(FitSettings(**base), progress=False)
     ck = load_checkpoint(out / "checkpoint.pt")
     served, trained = ck["model"], ck["train_model"]
     assert any(not torch.equal(served[k], trained[k]) for k in served)  # the average differs from training
@@ -68,14 +51,14 @@ def test_a_run_hands_out_the_average_and_resumes_both(shards, tmp_path):
     best = load_checkpoint(out / "best.pt")
     assert "train_model" in best and best["step"] in (1, 2)
     # a resume trains on from train_model and averages on from model (step 2's decay: min(0.2, 3/12))
-    fit(FitSettings(**base, steps=3), progress=False)
+    fit(FitSettings(**{**base, "steps": 3}), progress=False)
     ck3 = load_checkpoint(out / "checkpoint.pt")
     assert ck3["step"] == 3
     for k, v in ck3["model"].items():
         if v.is_floating_point():
             assert torch.allclose(v, 0.2 * served[k] + 0.8 * ck3["train_model"][k], atol=1e-6), k
     # off (the default): no separate training weights are stored
-    fit(FitSettings(**{**base, "out": str(tmp_path / "plain"), "ema": 0.0}, steps=1), progress=False)
+    fit(FitSettings(**{**base, "out": str(tmp_path / "plain"), "ema": 0.0, "steps": 1}), progress=False)
     assert "train_model" not in load_checkpoint(tmp_path / "plain" / "checkpoint.pt")
     with pytest.raises(ValueError, match="ema"):
-        FitSettings(**{**base, "ema": 1.0}, steps=1)
+        FitSettings(**{**base, "ema": 1.0, "steps": 1})
