@@ -54,7 +54,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         "contrast 0.1, cosine decay, collision weight 0.3, fold term 1.0 (CAD-clean predictions), "
         "the loss on both drawings of each sample",
     ),
-    "gun": (dict(contrast=1.0, steps=5400, **_COSINE), {}, "contrast 1.0, cosine decay"),
+    "gun": (
+        dict(contrast=1.0, steps=5400, **_COSINE),
+        _FOLD,
+        "contrast 1.0, cosine decay, fold term 1.0 (CAD-clean predictions)",
+    ),
     "knife": (
         dict(contrast=1.0, steps=6000, **_COSINE),
         _FOLD,
