@@ -58,3 +58,10 @@ def test_an_encoder_of_another_width_is_refused_naming_the_file(shards, tmp_path
     path = tmp_path / "source" / "checkpoint.pt"
     with pytest.raises(UsageError, match=r"source/checkpoint\.pt: its network cannot start this one"):
         fit(_settings(shards, tmp_path / "run", encoder_width=16, init_encoder=str(path)), progress=False)
+
+
+def test_a_checkpoint_without_network_weights_is_refused_naming_the_file(shards, tmp_path):
+    path = tmp_path / "foreign.pt"
+    torch.save({"settings": {}, "model": [1, 2, 3], "step": 0}, path)
+    with pytest.raises(UsageError, match=r"foreign\.pt: not a sketch2patch checkpoint: its 'model' holds no network"):
+        fit(_settings(shards, tmp_path / "run", init_encoder=str(path)), progress=False)

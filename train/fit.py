@@ -639,6 +639,8 @@ def _start_body_from(model: SketchToPatches, path: str) -> None:
     a sketch encoder already trained on another category. UsageError naming the file when its
     body does not fit (another encoder width or input)."""
     saved = load_checkpoint(path)["model"]
+    if not isinstance(saved, dict):
+        raise UsageError(f"{path}: not a sketch2patch checkpoint: its 'model' holds no network weights")
     own = model.state_dict()
     body = {k: v for k, v in saved.items() if k.startswith(("encoder.", "hidden.", "fields."))}
     wrong = [k for k, v in body.items() if k not in own or own[k].shape != v.shape]
