@@ -7,7 +7,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import write_fixture_shards  # noqa: E402
+from fixtures_shards import tiny_run, write_fixture_shards  # noqa: E402
 
 from pipeline.core.settings_io import SettingError
 from train.augmentation import SteadyAverage, steady_copies
@@ -25,21 +25,7 @@ def shards(tmp_path_factory):
 
 
 def settings(shards, out, steps, **kw):
-    base = dict(
-        dataset=str(shards),
-        category="knife",
-        template="sphere24",
-        out=str(out),
-        steps=steps,
-        batch_size=2,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=2,
-        log_every=1,
-        checkpoint_every=100,
-        weights=LossWeights(collision=0.0),
-    )
+    base = tiny_run(shards, out, steps=steps, max_views=2, log_every=1, checkpoint_every=100)
     return FitSettings(**{**base, **kw})
 
 

@@ -11,13 +11,12 @@ import torch
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures_shards import box_sketch, camera, write_fixture_shards  # noqa: E402
+from fixtures_shards import box_sketch, camera, tiny_run, write_fixture_shards  # noqa: E402
 
 from pipeline.core.atomic import read_json
 from train.errors import UsageError
 from train.export.kernel_check import step_file_verdict
 from train.fit import FitSettings, fit
-from train.losses.weights import LossWeights
 from train.predict import predict
 from train.serve.session import ServeSession, checkpoint_labels, has_strokes, view_bytes
 from train.serve.view_mesh import CROSSING_COLOR, read_patch_obj, write_view_glb
@@ -30,19 +29,7 @@ def tiny_checkpoint(root: Path, category: str = "knife") -> Path:
     shards = write_fixture_shards(root / "ds", category, n_points=600, size=32)
     out = root / "run"
     s = FitSettings(
-        dataset=str(shards),
-        category=category,
-        template=category,
-        out=str(out),
-        steps=2,
-        batch_size=2,
-        workers=0,
-        n_points=300,
-        image_size=32,
-        max_views=2,
-        log_every=1,
-        checkpoint_every=100,
-        weights=LossWeights(collision=0.0),
+        **tiny_run(shards, out, category=category, template=category, max_views=2, log_every=1, checkpoint_every=100)
     )
     fit(s, progress=False)
     return out / "checkpoint.pt"
