@@ -3,6 +3,7 @@
 Usage: .venv/bin/python bench/figure_predictions.py --checkpoint RUN/best.pt --dataset DS --work-dir WORK
        --out docs/images/quality_<category>.png [--rows 4] [--blind] [--variant 0]
        [--split all --blind-from TRAINING_DS --leave-out LABEL ...]   (meshes the network never saw)
+       [--views 4]   (the network reads each model's first 4 drawings; the sketch column tiles them)
 ``--variant K`` draws each row's sketch in pencil variant K (0: the dark line drawing, 1: the
 light, shaded one), and takes the blind mean over the same variant, as ``evaluate --variant`` does.
 Ground truth is the prepared mesh (``WORK/prepare-*/<category>/<model_id>/mesh.ply``). ``--blind`` adds
@@ -49,6 +50,7 @@ def figure(
     split: str = "test",
     blind_from: str | None = None,
     leave_out: tuple[str, ...] = (),
+    views: int = 1,
 ) -> np.ndarray:
     run = load_run(checkpoint)
     s, template, model = run.settings, run.template, run.model
@@ -67,10 +69,14 @@ def figure(
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
-        name = variant_member(sketch_table(raw)[0], variant, meta["model_id"])
-        sketch = read_png(raw[name], s.image_size)
-        x = torch.from_numpy(to_network(sketch))[None, None]
-        patches = template.patches_from_params(model(x, torch.ones(1, 1, dtype=torch.bool)))[0]
+        table = sketch_table(raw)
+        # the views evaluate --views reads: the first ones of the table, in its order
+        sketches = [
+            read_png(raw[variant_member(table[v], variant, meta["model_id"])], s.image_size)
+            for v in list(table)[:views]
+        ]
+        x = torch.from_numpy(np.stack([to_network(k) for k in sketches]))[None]
+        patches = template.patches_from_params(model(x, torch.ones(1, len(sketches), dtype=torch.bool)))[0]
         keep = objective.mask_for(meta.get(PRESENT_PARTS))
         v, f = welded_mesh(patches[keep].double(), 12)
         # a procedural model's work folder is its id, a folder source's its work id
@@ -82,15 +88,28 @@ def figure(
         if not gt:
             raise SystemExit(f"{meta['key']}: no prepared mesh at {' or '.join(map(str, where))} (--work-dir)")
         gv, gf = read_ply(gt[0])
-        big = cv2.resize(sketch, (size, size), interpolation=cv2.INTER_NEAREST)
-        images += [big, render_mesh(v, f, size), render_mesh(gv, gf, size)]
-        labels += [f"{meta['model_id']} sketch", "prediction", "ground truth"]
+        images += [tile(sketches, size), render_mesh(v, f, size), render_mesh(gv, gf, size)]
+        labels += [f"{meta['model_id']} sketch" + ("es" if len(sketches) > 1 else ""), "prediction", "ground truth"]
         if mean_patches is not None:  # the same parts kept as for the prediction
             images.append(render_mesh(*welded_mesh(mean_patches[keep].double(), 12), size))
             labels.append("sketch-blind mean")
         if len(labels) >= cols * rows:
             break
     return contact_sheet(images, labels, cols=cols)
+
+
+def tile(sketches: list[np.ndarray], size: int) -> np.ndarray:
+    """The drawings a prediction read, in a square grid filling one ``size`` cell (white where
+    the grid has no drawing)."""
+    k = int(np.ceil(np.sqrt(len(sketches))))
+    cell = size // k
+    out = np.full((size, size), 255, np.uint8)
+    for i, sk in enumerate(sketches):
+        r, c = divmod(i, k)
+        out[r * cell : (r + 1) * cell, c * cell : (c + 1) * cell] = cv2.resize(
+            sk, (cell, cell), interpolation=cv2.INTER_NEAREST if cell >= sk.shape[0] else cv2.INTER_AREA
+        )
+    return out
 
 
 def main() -> None:
@@ -105,6 +124,7 @@ def main() -> None:
     ap.add_argument("--split", default="test", help="test, val, train, or all (every split: a folder of real meshes)")
     ap.add_argument("--blind-from", default=None, help="dataset whose train split gives the blind mean (real meshes)")
     ap.add_argument("--leave-out", nargs="*", default=(), help="parts the targets lack, drawn absent (TORCS: wheels)")
+    ap.add_argument("--views", type=int, default=1, help="drawings of each model the network reads (evaluate --views)")
     a = ap.parse_args()
     fig = figure(
         a.checkpoint,
@@ -116,6 +136,7 @@ def main() -> None:
         split=a.split,
         blind_from=a.blind_from,
         leave_out=tuple(a.leave_out),
+        views=a.views,
     )
     save_png(a.out, fig)
     print(a.out)
