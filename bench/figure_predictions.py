@@ -30,7 +30,7 @@ from pipeline.core.images import contact_sheet, save_png
 from pipeline.core.schema import MESH_FILE, META_MEMBER, PRESENT_PARTS
 from pipeline.core.thumbnails import render_mesh
 from pipeline.sources.mesh_io import read_ply
-from train.data import DataSettings, read_png, shard_urls, sketch_table, to_network, variant_member
+from train.data import DataSettings, eval_members, read_png, shard_urls, sketch_table, to_network
 from train.evaluate import blind_output
 from train.fit import load_run
 from train.geometry.triangulate import welded_mesh
@@ -69,12 +69,8 @@ def figure(
     images, labels = [], []
     for raw in wds.WebDataset(urls, shardshuffle=False):
         meta = json.loads(raw[META_MEMBER])
-        table = sketch_table(raw)
-        # the views evaluate --views reads: the first ones of the table, in its order
-        sketches = [
-            read_png(raw[variant_member(table[v], variant, meta["model_id"])], s.image_size)
-            for v in list(table)[:views]
-        ]
+        names = eval_members(sketch_table(raw), views, variant, meta["model_id"])
+        sketches = [read_png(raw[name], s.image_size) for name in names]
         x = torch.from_numpy(np.stack([to_network(k) for k in sketches]))[None]
         patches = template.patches_from_params(model(x, torch.ones(1, len(sketches), dtype=torch.bool)))[0]
         keep = objective.mask_for(meta.get(PRESENT_PARTS))
@@ -126,6 +122,8 @@ def main() -> None:
     ap.add_argument("--leave-out", nargs="*", default=(), help="parts the targets lack, drawn absent (TORCS: wheels)")
     ap.add_argument("--views", type=int, default=1, help="drawings of each model the network reads (evaluate --views)")
     a = ap.parse_args()
+    if a.views < 1:
+        ap.error(f"--views must be 1 or more, got {a.views}")
     fig = figure(
         a.checkpoint,
         a.dataset,

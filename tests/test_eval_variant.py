@@ -10,7 +10,7 @@ import pytest
 
 from pipeline.core.errors import ModelError
 from pipeline.core.schema import POINTS_MEMBER, sketch_name
-from train.data import DataSettings, decode_sample, variant_member
+from train.data import DataSettings, decode_sample, eval_members, variant_member
 
 
 def _png(gray: int) -> bytes:
@@ -54,3 +54,14 @@ def test_variant_member_picks_by_the_variant_in_the_name_not_by_position() -> No
     assert variant_member(names, 1, "knife_00007") == sketch_name(3, 1)
     with pytest.raises(ModelError, match="knife_00007.*no pencil variant 2"):
         variant_member(names, 2, "knife_00007")
+
+
+def test_eval_members_reads_the_first_views_in_the_tables_order() -> None:
+    # evaluate --views N and the figure script read the same drawings through it
+    table = {
+        0: [sketch_name(0, 0), sketch_name(0, 1)],
+        2: [sketch_name(2, 1), sketch_name(2, 0)],
+        1: [sketch_name(1, 0)],
+    }
+    assert eval_members(table, 2, 1, "k") == [sketch_name(0, 1), sketch_name(2, 1)]
+    assert eval_members(table, 9, 0, "k") == [sketch_name(0, 0), sketch_name(2, 0), sketch_name(1, 0)]

@@ -243,6 +243,12 @@ def variant_member(names: list[str], variant: int, key: str) -> str:
     raise ModelError(key, f"has no pencil variant {variant} (its views have {len(names)}: 0..{len(names) - 1})")
 
 
+def eval_members(table: dict[int, list[str]], views: int, variant: int, key: str) -> list[str]:
+    """The drawings an evaluation reads of one sample: pencil ``variant`` of its first ``views``
+    views, in the table's order (``evaluate --views``, the figures)."""
+    return [variant_member(table[v], variant, key) for v in list(table)[:views]]
+
+
 def decode_sample(
     raw: dict,
     settings: DataSettings,
@@ -276,7 +282,7 @@ def decode_sample(
             others = [m for v in views for m in table[v] if m != names[0]] or [names[0]]
             pair_name = others[int(rng.integers(len(others)))]
     else:
-        names = [variant_member(table[v], settings.eval_variant, key) for v in views[: settings.eval_views]]
+        names = eval_members(table, settings.eval_views, settings.eval_variant, key)
         flip = False
         idx = rng_for(0, "eval-points", key).choice(
             len(points), size=settings.n_points, replace=len(points) < settings.n_points

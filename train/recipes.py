@@ -24,7 +24,8 @@ _SLOW_OUTPUT = dict(lr=3e-4, output_lr_scale=0.1)
 # lower L_Ch (BENCHMARKS.md, "Where the CAD kernel rejects the predictions").
 _FOLD = dict(fold=1.0)
 # The paper's loss on both drawings of each sample (the contrastive term's pair): 16 drawings of the
-# step's 8 models teach the encoder; +1.8 to +3.1 points vs blind on the two categories that underfit.
+# step's 8 models teach the encoder; +0.4 to +3.1 points vs blind (1.6–1.7 on average) on the two
+# categories that underfit.
 _PAIR = dict(pair_loss=1.0)
 # One to four drawings of each sample, max-pooled (the paper's multi-view input): read from one
 # drawing as well as before, and better from several (BENCHMARKS.md, "Several drawings of one object").
