@@ -6,7 +6,7 @@ dihedral angles, and one ray-tracing BVH; per view,
 
 1. feature edges: silhouettes (the two faces of the edge face the camera differently), borders
    (edges of one face) and creases (normals more than ``180° − crease_angle_deg`` apart: the
-   same convention as Freestyle's crease angle);
+   same convention as Freestyle's crease angle), those of the kinds in ``edge_types``;
 2. about one sample per pixel along each projected edge, each tested for visibility with one
    occlusion ray from the camera that stops just short of the sample;
 3. runs of visible samples chained into polylines through the mesh vertices they share, then
@@ -54,8 +54,11 @@ class MeshLines:
         self.face_pairs, self.pair_edges, border = _edge_topology(self.faces[keep], np.flatnonzero(keep))
         cos_pair = np.einsum("ij,ij->i", self.normals[self.face_pairs[:, 0]], self.normals[self.face_pairs[:, 1]])
         crease_cos = math.cos(math.radians(180.0 - settings.crease_angle_deg))
-        self.crease = cos_pair < crease_cos
-        self.border_edges = border
+        kinds = set(settings.edge_types)
+        # Freestyle's contours and external contours are silhouettes to this backend: one front/back test
+        self.draw_silhouettes = bool(kinds & {"silhouette", "contour", "external_contour"})
+        self.crease = (cos_pair < crease_cos) & ("crease" in kinds)
+        self.border_edges = border if "border" in kinds else border[:0]
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=self.vertices.astype(np.float32), indices=self.faces.astype(np.int32))
 
@@ -66,7 +69,7 @@ class MeshLines:
             front = self.normals @ toward_eye > 0
         else:
             front = np.einsum("ij,ij->i", self.normals, view.eye - self.centers) > 0
-        sil = front[self.face_pairs[:, 0]] != front[self.face_pairs[:, 1]]
+        sil = (front[self.face_pairs[:, 0]] != front[self.face_pairs[:, 1]]) & self.draw_silhouettes
         pair = sil | self.crease
         edges = np.concatenate([self.pair_edges[pair], self.border_edges])
         nature = np.concatenate([np.where(sil[pair], SILHOUETTE, CREASE), np.full(len(self.border_edges), BORDER)])

@@ -158,3 +158,24 @@ def test_luigi_build_with_embree_backend(tmp_path) -> None:
     assert render_dir.is_dir()
     recs = [read_json(p) for p in sorted(render_dir.glob("mug/*/record.json"))]
     assert len(recs) == 2 and all(r["status"] == "ok" for r in recs)
+
+
+def test_embree_draws_only_the_edge_types_asked_for() -> None:
+    # a cube seen from above a corner: its outline is silhouette, the three edges meeting at the
+    # near corner are creases; each kind is drawn only when edge_types names it
+    import trimesh
+
+    from render.cameras import make_view
+    from render.edge_lines import CREASE, SILHOUETTE, MeshLines
+
+    cube = trimesh.creation.box((0.8, 0.8, 0.8))
+
+    def natures(kinds: tuple[str, ...]) -> set[int]:
+        settings = RenderSettings(backend="embree", edge_types=kinds)
+        lines = MeshLines(np.asarray(cube.vertices), np.asarray(cube.faces), settings)
+        return set(lines.feature_edges(make_view(settings, 30.0, 30.0))[1].tolist())
+
+    assert natures(RenderSettings().edge_types) == {SILHOUETTE, CREASE}
+    assert natures(("silhouette", "border")) == {SILHOUETTE}
+    assert natures(("external_contour",)) == {SILHOUETTE}
+    assert natures(("crease",)) == {CREASE}

@@ -29,7 +29,8 @@ def settings_hash(settings: Any, upstream: str = "", length: int = 10) -> str:
 # older code is never taken for current outputs (settings alone cannot tell them apart).
 # prepare 5: binary PLY sources, recorded failed by version 4, build. render 3, augment 4: PNGs
 # written with zlib's run-length strategy, strokes.json without white space (same pixels, points).
-STAGE_VERSIONS = {"source": 3, "prepare": 5, "render": 3, "augment": 4, "shards": 2, "fit": 1}
+# render 4: the embree backend draws only the edge_types asked for (it drew all three before).
+STAGE_VERSIONS = {"source": 3, "prepare": 5, "render": 4, "augment": 4, "shards": 2, "fit": 1}
 
 
 def stage_key(stage: str, settings: Any, upstream: str = "") -> str:
