@@ -4,13 +4,15 @@ Fits the template's parameters directly to each target (no sketch, no network): 
 control points of every shape of a split at once (the fit stage's fit), with the training loss
 minus the collision term (for speed; the ceiling is about L_Ch), then reports the plain L_Ch the quality table uses
 (`train evaluate`: nearest points, midpoint grid, no part groups) for the template, the fitted
-shapes, and — from an `evaluate` JSON when given — the network and the sketch-blind baseline.
+shapes, the mean of the other shapes' fits as one constant answer for each shape (leave one out:
+what a network that learned only the set's common shape, and read nothing, would score), and —
+from an `evaluate` JSON when given — the network and the sketch-blind baseline.
 If the fitted L_Ch is not 25 % below blind, no network can meet the "−25 % vs blind" goal with
 this template: the template, not the sketch reading, limits the category.
 
 Usage: OMP_NUM_THREADS=1 .venv/bin/python bench/bench_fit_ceiling.py --dataset DS --category CAT
        [--template CAT] [--split test] [--shapes 16] [--steps 300] [--lr 0.01] [--points 4000]
-       [--eval bench/results/eval_CAT_cpu.json] [--out bench/results/ceiling_CAT.json]
+       [--leave-out LABEL ...] [--eval bench/results/eval_CAT_cpu.json] [--out bench/results/ceiling_CAT.json]
 """
 
 from __future__ import annotations
@@ -60,9 +62,10 @@ def fit_ceiling(
     steps: int = 300,
     lr: float = 0.01,
     n_points: int = 4000,
+    leave_out: tuple[str, ...] = (),
 ) -> dict:
     template = load_template(template_name)
-    objective = Objective(template, n_points)
+    objective = Objective(template, n_points, leave_out=leave_out)
     batch = _batch(dataset, category, split, n_points, shapes)
     b = len(batch["key"])
     start = template.initial_params()[None].expand(b, -1).clone()
@@ -70,6 +73,8 @@ def fit_ceiling(
     with torch.no_grad():
         tpl = _plain_chamfer(objective, start, batch)
         fitted = _plain_chamfer(objective, params, batch)
+        others = (params.sum(0, keepdim=True) - params) / max(b - 1, 1)
+        common = _plain_chamfer(objective, others, batch)
     return {
         "category": category,
         "template": template_name,
@@ -79,8 +84,10 @@ def fit_ceiling(
         "steps": steps,
         "lr": lr,
         "points": n_points,
+        **({"left_out": sorted(leave_out)} if leave_out else {}),
         "template_chamfer": float(tpl.mean()),
         "fitted_chamfer": float(fitted.mean()),
+        "others_mean_chamfer": float(common.mean()),
     }
 
 
@@ -94,17 +101,23 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--lr", type=float, default=0.01)
     p.add_argument("--points", type=int, default=4000)
+    p.add_argument(
+        "--leave-out", nargs="*", default=[], help="patch labels absent in every target (as `evaluate --leave-out`)"
+    )
     p.add_argument("--eval", default=None, help="an evaluate JSON of the same split: adds network and blind")
     p.add_argument("--out", default=None)
     a = p.parse_args()
     torch.set_num_threads(1)
     t0 = time.process_time()
-    res = fit_ceiling(a.dataset, a.category, a.template or a.category, a.split, a.shapes, a.steps, a.lr, a.points)
+    res = fit_ceiling(
+        a.dataset, a.category, a.template or a.category, a.split, a.shapes, a.steps, a.lr, a.points, tuple(a.leave_out)
+    )
     res["cpu_s"] = round(time.process_time() - t0, 1)
     if a.eval:
         ev = json.load(open(a.eval))
         res["network_chamfer"], res["blind_chamfer"] = ev["model"]["chamfer"], ev["blind"]["chamfer"]
         res["fitted_vs_blind"] = res["fitted_chamfer"] / res["blind_chamfer"] - 1
+        res["others_mean_vs_blind"] = res["others_mean_chamfer"] / res["blind_chamfer"] - 1
     print(json.dumps(res, indent=1))
     if a.out:
         write_bytes(a.out, dumps_json(res).encode())
