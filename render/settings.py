@@ -21,6 +21,8 @@ EDGE_TYPES = (
     "material_boundary",
     "edge_mark",
 )
+# What the embree backend draws of them (contours are silhouettes to it: render.edge_lines).
+EMBREE_EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +81,11 @@ class RenderSettings:
         unknown = set(self.edge_types) - set(EDGE_TYPES)
         if unknown or not self.edge_types:
             raise ValueError(f"edge_types must be a non-empty subset of {EDGE_TYPES}, got {self.edge_types!r}")
+        if self.backend == "embree" and not set(self.edge_types) & set(EMBREE_EDGE_TYPES):
+            raise ValueError(
+                f"the embree backend draws only {', '.join(EMBREE_EDGE_TYPES)}; edge_types {self.edge_types!r} "
+                "names none of them (backend freestyle draws every Freestyle type)"
+            )
         if not all(0.0 <= x <= 1.0 for x in (self.min_view_extent, self.view_extent_fraction, self.view_area_fraction)):
             raise ValueError("min_view_extent, view_extent_fraction and view_area_fraction must lie in [0, 1]")
         if self.view_candidates < 1:

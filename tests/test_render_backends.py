@@ -179,3 +179,10 @@ def test_embree_draws_only_the_edge_types_asked_for() -> None:
     assert natures(("silhouette", "border")) == {SILHOUETTE}
     assert natures(("external_contour",)) == {SILHOUETTE}
     assert natures(("crease",)) == {CREASE}
+
+
+def test_embree_refuses_edge_types_it_cannot_draw() -> None:
+    with pytest.raises(ValueError, match="embree backend draws only"):
+        RenderSettings(backend="embree", edge_types=("suggestive_contour", "ridge_valley"))
+    RenderSettings(backend="freestyle", edge_types=("suggestive_contour",))  # Freestyle draws them
+    RenderSettings(backend="embree", edge_types=("suggestive_contour", "crease"))  # the crease it draws
