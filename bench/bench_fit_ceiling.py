@@ -73,8 +73,8 @@ def fit_ceiling(
     with torch.no_grad():
         tpl = _plain_chamfer(objective, start, batch)
         fitted = _plain_chamfer(objective, params, batch)
-        others = (params.sum(0, keepdim=True) - params) / max(b - 1, 1)
-        common = _plain_chamfer(objective, others, batch)
+        # with one shape there are no others to average
+        common = _plain_chamfer(objective, (params.sum(0, keepdim=True) - params) / (b - 1), batch) if b > 1 else None
     return {
         "category": category,
         "template": template_name,
@@ -87,7 +87,7 @@ def fit_ceiling(
         **({"left_out": sorted(leave_out)} if leave_out else {}),
         "template_chamfer": float(tpl.mean()),
         "fitted_chamfer": float(fitted.mean()),
-        "others_mean_chamfer": float(common.mean()),
+        "others_mean_chamfer": None if common is None else float(common.mean()),
     }
 
 
@@ -117,7 +117,8 @@ def main() -> None:
         ev = json.load(open(a.eval))
         res["network_chamfer"], res["blind_chamfer"] = ev["model"]["chamfer"], ev["blind"]["chamfer"]
         res["fitted_vs_blind"] = res["fitted_chamfer"] / res["blind_chamfer"] - 1
-        res["others_mean_vs_blind"] = res["others_mean_chamfer"] / res["blind_chamfer"] - 1
+        if res["others_mean_chamfer"] is not None:
+            res["others_mean_vs_blind"] = res["others_mean_chamfer"] / res["blind_chamfer"] - 1
     print(json.dumps(res, indent=1))
     if a.out:
         write_bytes(a.out, dumps_json(res).encode())

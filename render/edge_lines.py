@@ -26,7 +26,7 @@ import numpy as np
 
 from render.cameras import View
 from render.capture import typed_stroke
-from render.settings import RenderSettings
+from render.settings import EMBREE_SILHOUETTE_TYPES, RenderSettings
 
 # Edge natures, in Freestyle's precedence when an edge has several (capture._TYPE_ORDER).
 SILHOUETTE, BORDER, CREASE = 0, 1, 2
@@ -55,8 +55,7 @@ class MeshLines:
         cos_pair = np.einsum("ij,ij->i", self.normals[self.face_pairs[:, 0]], self.normals[self.face_pairs[:, 1]])
         crease_cos = math.cos(math.radians(180.0 - settings.crease_angle_deg))
         kinds = set(settings.edge_types)
-        # Freestyle's contours and external contours are silhouettes to this backend: one front/back test
-        self.draw_silhouettes = bool(kinds & {"silhouette", "contour", "external_contour"})
+        self.draw_silhouettes = bool(kinds & set(EMBREE_SILHOUETTE_TYPES))
         self.crease = (cos_pair < crease_cos) & ("crease" in kinds)
         self.border_edges = border if "border" in kinds else border[:0]
         self._scene = rtcore_scene.EmbreeScene()

@@ -21,8 +21,10 @@ EDGE_TYPES = (
     "material_boundary",
     "edge_mark",
 )
-# What the embree backend draws of them (contours are silhouettes to it: render.edge_lines).
-EMBREE_EDGE_TYPES = ("silhouette", "border", "crease", "contour", "external_contour")
+# What the embree backend draws of them: Freestyle's contours are silhouettes to it (one test, an
+# edge between a front and a back face; render.edge_lines), and borders and creases.
+EMBREE_SILHOUETTE_TYPES = ("silhouette", "contour", "external_contour")
+EMBREE_EDGE_TYPES = EMBREE_SILHOUETTE_TYPES + ("border", "crease")
 
 
 @dataclasses.dataclass(frozen=True)
