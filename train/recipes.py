@@ -44,7 +44,8 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         dict(contrast=0.1, steps=5000, **_SLOW_OUTPUT, **_COSINE, **_PAIR, **_VIEWS),
         _FOLD,
         "contrast 0.1, cosine decay from 3e-4, the output layer at 0.1 of it, fold term 1.0 (CAD-clean predictions), "
-        "the loss on both drawings of each sample, one to four views a sample",
+        "the loss on both drawings of each sample, one to four views a sample; "
+        "its quality row's data is built with elevation_range [20, 60] (views that show the basin)",
     ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (
