@@ -27,11 +27,11 @@ import numpy as np
 import torch
 
 from pipeline.core.atomic import dumps_json, write_bytes
+from pipeline.core.schema import POINTS_MEMBER
 from pipeline.core.seeding import rng_for
-from train.nn_search import nearest_distances
+from train.data import eval_point_indices
+from train.losses.chamfer import chamfer_loss
 from train.shard_reader import index_shard, read_samples
-
-POINTS = "points.npy"
 
 
 def surface_samples(dataset: str | Path, category: str, split: str) -> list[tuple[str, np.ndarray]]:
@@ -39,7 +39,7 @@ def surface_samples(dataset: str | Path, category: str, split: str) -> list[tupl
     out = []
     for shard in sorted(Path(dataset, category).glob(f"{split}-*.tar")):
         for sample in read_samples(shard, index_shard(shard)):
-            pts = np.load(io.BytesIO(sample[POINTS]), allow_pickle=False)[:, :3].astype(np.float32)
+            pts = np.load(io.BytesIO(sample[POINTS_MEMBER]), allow_pickle=False)[:, :3].astype(np.float32)
             out.append((sample["__key__"], pts))
     if not out:
         raise FileNotFoundError(f"no {split} shards of {category!r} under {dataset}")
@@ -52,14 +52,13 @@ def floor_chamfer(key: str, points: np.ndarray, n_points: int) -> float:
     m = len(points)
     if m < 2 * n_points:
         raise ValueError(f"{key}: {m} stored points, fewer than twice {n_points}")
-    target = rng_for(0, "eval-points", key).choice(m, size=n_points, replace=False)
+    target = eval_point_indices(key, m, n_points)
     rest = np.setdiff1d(np.arange(m), target)
     answer = rng_for(0, "floor-points", key).choice(rest, size=n_points, replace=False)
-    a = torch.from_numpy(points[np.sort(answer)])[None]
+    # the answer as one patch of equally weighted samples: L_Ch exactly as training computes it
+    a = torch.from_numpy(points[np.sort(answer)])[None, None]
     t = torch.from_numpy(points[np.sort(target)])[None]
-    d_at, _ = nearest_distances(a, t)
-    d_ta, _ = nearest_distances(t, a)
-    return float(d_at.mean() + d_ta.mean())
+    return float(chamfer_loss(a, torch.ones(a.shape[:3]), t)[0])
 
 
 def chamfer_floor(dataset: str, category: str, split: str = "test", n_points: int = 4000) -> dict:

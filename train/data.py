@@ -243,6 +243,12 @@ def variant_member(names: list[str], variant: int, key: str) -> str:
     raise ModelError(key, f"has no pencil variant {variant} (its views have {len(names)}: 0..{len(names) - 1})")
 
 
+def eval_point_indices(key: str, stored: int, n_points: int) -> np.ndarray:
+    """Which ``n_points`` of a sample's ``stored`` surface points evaluation takes as its target:
+    seeded by the sample's key alone, so every evaluation of a shape measures against the same points."""
+    return rng_for(0, "eval-points", key).choice(stored, size=n_points, replace=stored < n_points)
+
+
 def eval_members(table: dict[int, list[str]], views: int, variant: int, key: str) -> list[str]:
     """The drawings an evaluation reads of one sample: pencil ``variant`` of its first ``views``
     views, in the table's order (``evaluate --views``, the figures)."""
@@ -284,9 +290,7 @@ def decode_sample(
     else:
         names = eval_members(table, settings.eval_views, settings.eval_variant, key)
         flip = False
-        idx = rng_for(0, "eval-points", key).choice(
-            len(points), size=settings.n_points, replace=len(points) < settings.n_points
-        )
+        idx = eval_point_indices(key, len(points), settings.n_points)
     width = settings.max_views if train else settings.eval_views
     images = np.zeros((width, 1, settings.image_size, settings.image_size), np.float32)
     mask = np.zeros(width, bool)
