@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 from typing import TYPE_CHECKING
 
@@ -74,9 +75,12 @@ def fit_settings(a: argparse.Namespace, given: set[str] | None = None) -> FitSet
 def _recipe_settings(a: argparse.Namespace, given: set[str]) -> FitSettings:
     from train.fit import FitSettings
     from train.losses.weights import weight_overrides
-    from train.recipes import recipe
+    from train.recipes import dataset_note, recipe
 
     base = recipe(a.recipe, a.dataset, a.out)
+    note = dataset_note(a.recipe, a.dataset) if a.dataset else None
+    if note and os.environ.get("RANK", "0") == "0":  # once under torchrun, not once a process
+        print(note, file=sys.stderr)
     fields = {f.name for f in dataclasses.fields(FitSettings)} - set(OWN_FLAGS)
     changes = {k: getattr(a, k) for k in given & fields}
     weights = weight_overrides(a)

@@ -2,14 +2,21 @@
 
 ``python -m train fit --recipe knife --dataset DS --out RUN`` starts from the recipe and any flag
 given on the command line overrides its field. Each recipe is the row of BENCHMARKS.md's quality
-table for that category (1,000 procedural models, ~30 minutes on one CPU core, width-32 encoder):
-what reproduces the row, not a guess at what is best elsewhere. Loss weights are the template
+table for that category (~30 minutes on one CPU core, width-32 encoder) on the data of the build
+preset of the same name (``BuildCategory --preset knife``, ``pipeline.core.build_presets``): what
+reproduces the row, not a guess at what is best elsewhere; ``fit`` says when its dataset was built
+otherwise. Loss weights are the template
 file's regularizers with the recipe's own weights on top (the recipe wins), so a rebuilt template
 does not silently change a recipe.
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+from pipeline.core.build_presets import manifest_differences
+from pipeline.core.schema import FRAGMENT
 from train.fit import FitSettings
 from train.losses.weights import template_weights
 from train.templates import load_template
@@ -37,15 +44,14 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         dict(ema=0.999, contrast=1.0, steps=6000, **_SLOW_OUTPUT, **_COSINE),
         {"collision": 0.3, **_FOLD},
         "cosine decay from 3e-4, the output layer at 0.1 of it, collision weight 0.3, weight average 0.999, "
-        "fold term 1.0 (CAD-clean predictions); "
-        "its quality row's data is built with view_area_fraction 0.8 (views that show the wings)",
+        "fold term 1.0 (CAD-clean predictions); its build preset draws views that show the wings",
     ),
     "bathtub": (
         dict(contrast=0.1, steps=5000, **_SLOW_OUTPUT, **_COSINE, **_PAIR, **_VIEWS),
         _FOLD,
         "contrast 0.1, cosine decay from 3e-4, the output layer at 0.1 of it, fold term 1.0 (CAD-clean predictions), "
         "the loss on both drawings of each sample, one to four views a sample; "
-        "its quality row's data is built with elevation_range [20, 60] (views that show the basin)",
+        "its build preset draws views that show the basin",
     ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (
@@ -83,6 +89,23 @@ def describe(name: str) -> str:
     """One line for ``--help``: what the recipe is, and its step count (read from its fields, so it cannot drift)."""
     fields, _, what = _RECIPES[name]
     return f"{what}, {fields['steps']:,} steps"
+
+
+def dataset_note(name: str, dataset: str | Path) -> str | None:
+    """One line when ``dataset``'s ``name`` category was built otherwise than the build preset
+    the recipe's row was measured on (None when it agrees, or has no such category: ``fit`` says that)."""
+    fragment = Path(dataset) / name / FRAGMENT
+    try:
+        settings = json.loads(fragment.read_text())["settings"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    differences = manifest_differences(name, settings)
+    if not differences:
+        return None
+    return (
+        f"note: the {name} recipe's quality row was measured on data built with --preset {name}; "
+        f"{fragment} differs: {'; '.join(differences)}"
+    )
 
 
 def recipe(name: str, dataset: str = "", out: str = "") -> FitSettings:

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import os
 from pathlib import Path
 
 from augment.settings import AugmentSettings
+from pipeline.core.build_presets import PRESETS, UnknownPreset, apply_preset
 from pipeline.core.fit_settings import PatchFitSettings
 from pipeline.core.settings_io import SettingError, from_dict, parse_json_object, setting
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
@@ -112,6 +114,10 @@ class BuildSettings:
     # The stage settings a build names directly take their defaults from the stage classes: one
     # default per setting. Flags and Luigi parameters are made from these fields (help: comments).
     source: str = setting("procedural", "'procedural' or a ShapeNet / <root>/<category>/ folder")
+    # A named build (pipeline.core.build_presets): fills the settings left at their defaults
+    preset: str = setting(
+        "", "a named build, the data of a category's quality-table row: " + ", ".join(PRESETS) + " (flags win)"
+    )
     models_per_category: int = setting(16, "models per category (0 = all)")
     views: int = setting(RenderSettings.views, "rendered views per model")
     variants: int = setting(AugmentSettings.variants, "pencil variants per view")
@@ -140,12 +146,34 @@ class BuildSettings:
     )  # scheduling only, never outputs
 
     def __post_init__(self) -> None:
+        if self.preset:
+            self._resolve_preset()
         # here, not in the command line's checks, so library callers are refused alike
         for attr, low in MINIMUMS.items():
             value = getattr(self, attr)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 extra = " (0 = every model)" if attr == "models_per_category" else ""
                 raise SettingError(f"{attr} must be an integer >= {low}{extra}, got {value!r}", "BuildSettings", attr)
+
+    def _resolve_preset(self) -> None:
+        """The preset's values in the fields the caller left at their defaults (and under the
+        caller's keys of each settings JSON). Resolving twice gives the same settings, so tasks
+        that pass the preset on to the tasks they require agree with them."""
+        try:
+            values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+            jsons = {k: parse_json_object(values[k]) for k in values if k.endswith("_overrides")}
+        except ValueError:
+            return  # an unreadable settings JSON: check_settings names it
+        defaults = {f.name: f.default for f in dataclasses.fields(self)}
+        try:
+            resolved = apply_preset(self.preset, {**values, **jsons}, defaults)
+        except UnknownPreset as exc:
+            raise SettingError(str(exc), "BuildSettings", "preset") from None
+        for k, v in resolved.items():
+            # frozen: settings are fixed once made, and this is their making
+            if k in jsons:
+                v = json.dumps(v, sort_keys=True) if v else ""
+            object.__setattr__(self, k, v)
 
     # ---- per-stage settings
     @property

@@ -1,0 +1,89 @@
+"""Named build presets: the data half of a category's quality-table row (the training half is
+``train.recipes``).
+
+``luigi --module workflows BuildCategory --category bathtub --preset bathtub --local-scheduler``
+builds the data the bathtub recipe was measured on; ``python -m train fit --recipe bathtub`` then
+reproduces its row, and says so when the dataset it is given was built otherwise. A preset
+fills the build settings the user left at their defaults; a flag given another value wins, and
+keys of a settings JSON (``--render-settings``) win over the preset's keys of that stage. The
+resolved settings, not the preset's name, key the stages: a preset build and the same settings
+spelled out share every stage folder.
+
+Values are by BuildSettings field; the ``*_overrides`` fields are JSON objects of a stage's settings.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+# What every quality-table build shares: 1,000 procedural models, 4 views x 2 pencil variants,
+# drawn by the embree backend (BENCHMARKS.md, "Quality per category").
+_ROW: dict[str, Any] = {"models_per_category": 1000, "views": 4, "variants": 2}
+_EMBREE = {"backend": "embree"}
+
+BUILD_PRESETS: dict[str, dict[str, Any]] = {
+    # views whose silhouette hull covers >= 0.8 of the largest candidate's: no wings seen edge-on
+    # (BENCHMARKS.md, "The airplane: its build, its seeds and the options beside its recipe")
+    "airplane": {**_ROW, "render_overrides": {**_EMBREE, "view_area_fraction": 0.8}},
+    # views from above 20°, where the drawing shows the basin (BENCHMARKS.md, "The bathtub: views
+    # that show its basin"); 54 % of the default rig's views came from below
+    "bathtub": {**_ROW, "render_overrides": {**_EMBREE, "elevation_range": [20.0, 60.0]}},
+    **{c: {**_ROW, "render_overrides": dict(_EMBREE)} for c in ("bottle", "car", "guitar", "gun", "knife", "mug")},
+}
+PRESETS: tuple[str, ...] = tuple(sorted(BUILD_PRESETS))
+
+# Where each preset value lands in a category's manifest settings (manifest.json "categories").
+_MANIFEST_PATH = {
+    "models_per_category": ("models_per_category",),
+    "views": ("render", "views"),
+    "variants": ("augment", "variants"),
+}
+_MANIFEST_STAGE = {"render_overrides": "render", "augment_overrides": "augment", "prepare_overrides": "prepare"}
+
+
+class UnknownPreset(ValueError):
+    def __init__(self, name: str) -> None:
+        super().__init__(f"unknown preset {name!r}: expected one of {', '.join(PRESETS)}")
+
+
+def preset(name: str) -> dict[str, Any]:
+    """The settings of build preset ``name`` (a copy)."""
+    if name not in BUILD_PRESETS:
+        raise UnknownPreset(name)
+    return {k: dict(v) if isinstance(v, dict) else v for k, v in BUILD_PRESETS[name].items()}
+
+
+def apply_preset(name: str, values: dict[str, Any], defaults: dict[str, Any]) -> dict[str, Any]:
+    """``values`` (build settings by field; JSON fields as dicts) with preset ``name`` filling each
+    field still at its ``defaults`` value, and under the user's keys of each stage's JSON."""
+    out = dict(values)
+    for field, value in preset(name).items():
+        if isinstance(value, dict):
+            out[field] = {**value, **(values.get(field) or {})}
+        elif values.get(field, defaults.get(field)) == defaults.get(field):
+            out[field] = value
+    return out
+
+
+def manifest_differences(name: str, settings: dict[str, Any]) -> list[str]:
+    """How a category's manifest ``settings`` differ from build preset ``name``: one
+    ``"where: built value (preset value)"`` item per difference; [] when they agree."""
+    out = []
+    for field, value in preset(name).items():
+        if isinstance(value, dict):
+            stage = settings.get(_MANIFEST_STAGE[field], {})
+            pairs = [(f"{_MANIFEST_STAGE[field]}.{k}", stage.get(k), v) for k, v in value.items()]
+        else:
+            node: Any = settings
+            for part in _MANIFEST_PATH[field]:
+                node = node.get(part) if isinstance(node, dict) else None
+            pairs = [(".".join(_MANIFEST_PATH[field]), node, value)]
+        out += [f"{where} {built!r} (preset {want!r})" for where, built, want in pairs if not _same(built, want)]
+    return out
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal as JSON values are: a list and a tuple of the same numbers agree, and 20 equals 20.0."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return a == b

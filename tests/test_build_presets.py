@@ -1,0 +1,83 @@
+"""Named build presets: the data half of a recipe's quality row (pipeline.core.build_presets)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from pipeline.core.build_presets import PRESETS
+from workflows.build_settings import BuildSettings
+
+SPELLED_OUT = dict(models_per_category=1000, render_overrides='{"backend": "embree", "elevation_range": [20, 60]}')
+
+
+def test_a_preset_is_the_same_build_as_its_settings_spelled_out(tmp_path: Path) -> None:
+    b = BuildSettings(preset="bathtub", work_dir=tmp_path)
+    assert (b.models_per_category, b.views, b.variants) == (1000, 4, 2)
+    assert (b.render_settings().backend, b.render_settings().elevation_range) == ("embree", (20.0, 60.0))
+    plain = BuildSettings(**SPELLED_OUT, work_dir=tmp_path)
+    for stage in plain.stages():  # the preset's name keys nothing: the same stage folders
+        assert b.stage_dir(stage) == plain.stage_dir(stage)
+    assert b.manifest_settings() == plain.manifest_settings()
+    # tasks hand their settings on to the tasks they require: resolving again changes nothing
+    again = BuildSettings(**{k: getattr(b, k) for k in b.__dataclass_fields__})
+    assert again == b
+
+
+def test_flags_and_json_keys_win_over_the_preset(tmp_path: Path) -> None:
+    b = BuildSettings(
+        preset="airplane", models_per_category=50, render_overrides='{"backend": "freestyle"}', work_dir=tmp_path
+    )
+    r = b.render_settings()
+    assert b.models_per_category == 50 and r.backend == "freestyle" and r.view_area_fraction == 0.8
+    assert BuildSettings(preset="guitar", work_dir=tmp_path).render_settings().view_area_fraction == 0.0
+
+
+def test_an_unknown_preset_names_its_flag_and_the_choices() -> None:
+    from workflows.validate import BuildParameterError, build_settings
+
+    with pytest.raises(BuildParameterError, match=r"^--preset: unknown preset 'chair': expected one of airplane, "):
+        build_settings({"preset": "chair"})
+
+
+def test_the_luigi_task_builds_the_preset(tmp_path: Path) -> None:
+    from workflows.tasks import BuildCategory, CategoryShards
+
+    common = dict(category="bathtub", work_dir=str(tmp_path / "w"), dataset_dir=str(tmp_path / "d"))
+    root = BuildCategory(preset="bathtub", **common)
+    assert root.build.render_settings().elevation_range == (20.0, 60.0)
+    shards = [t for t in root.requires() if isinstance(t, CategoryShards)]
+    assert shards and all(t.build == root.build for t in shards)
+    # the name is significant: a preset build and a default one are different tasks
+    assert root.task_id != BuildCategory(**common).task_id
+
+
+def test_every_recipe_has_its_build_preset() -> None:
+    from train.recipes import RECIPES
+
+    assert PRESETS == RECIPES
+
+
+def _category(root: Path, build: BuildSettings, name: str = "bathtub") -> Path:
+    (root / name).mkdir(parents=True)
+    (root / name / "category.json").write_text(json.dumps({"category": name, "settings": build.manifest_settings()}))
+    return root
+
+
+def test_fit_says_when_its_dataset_was_not_built_with_the_recipes_preset(tmp_path: Path, capsys) -> None:
+    from tests.test_recipes import _fit
+    from train.recipes import dataset_note
+
+    other = _category(tmp_path / "default", BuildSettings(work_dir=tmp_path))
+    note = dataset_note("bathtub", other)
+    assert note is not None and "--preset bathtub" in note
+    for words in ("render.elevation_range [-10.0, 40.0] (preset [20.0, 60.0])", "render.backend 'freestyle'"):
+        assert words in note
+    assert "models_per_category 16 (preset 1000)" in note
+    _fit(["--recipe", "bathtub", "--dataset", str(other), "--out", "o"])
+    assert "--preset bathtub" in capsys.readouterr().err
+    same = _category(tmp_path / "preset", BuildSettings(preset="bathtub", work_dir=tmp_path))
+    assert dataset_note("bathtub", same) is None
+    assert dataset_note("bathtub", tmp_path / "missing") is None  # fit itself says the data is missing
