@@ -40,6 +40,8 @@ def test_an_unknown_preset_names_its_flag_and_the_choices() -> None:
 
     with pytest.raises(BuildParameterError, match=r"^--preset: unknown preset 'chair': expected one of airplane, "):
         build_settings({"preset": "chair"})
+    with pytest.raises(BuildParameterError, match=r"^--render-settings: "):  # named as without a preset
+        build_settings({"preset": "bathtub", "render_overrides": 3})
 
 
 def test_the_luigi_task_builds_the_preset(tmp_path: Path) -> None:

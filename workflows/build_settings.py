@@ -162,7 +162,7 @@ class BuildSettings:
         try:
             values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
             jsons = {k: parse_json_object(values[k]) for k in values if k.endswith("_overrides")}
-        except ValueError:
+        except (ValueError, TypeError):
             return  # an unreadable settings JSON: check_settings names it
         defaults = {f.name: f.default for f in dataclasses.fields(self)}
         try:
