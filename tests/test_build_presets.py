@@ -83,3 +83,13 @@ def test_fit_says_when_its_dataset_was_not_built_with_the_recipes_preset(tmp_pat
     same = _category(tmp_path / "preset", BuildSettings(preset="bathtub", work_dir=tmp_path))
     assert dataset_note("bathtub", same) is None
     assert dataset_note("bathtub", tmp_path / "missing") is None  # fit itself says the data is missing
+
+
+def test_every_presets_build_agrees_with_the_preset(tmp_path: Path) -> None:
+    from pipeline.core.build_presets import manifest_differences
+
+    # each preset field has its place in the manifest, and its own build reads back as itself
+    for name in PRESETS:
+        built = json.loads(json.dumps(BuildSettings(preset=name, work_dir=tmp_path).manifest_settings()))
+        assert manifest_differences(name, built) == [], name
+    assert manifest_differences("airplane", built)  # the mug's build is not the airplane's

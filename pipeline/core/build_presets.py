@@ -38,7 +38,13 @@ _MANIFEST_PATH = {
     "views": ("render", "views"),
     "variants": ("augment", "variants"),
 }
-_MANIFEST_STAGE = {"render_overrides": "render", "augment_overrides": "augment", "prepare_overrides": "prepare"}
+_MANIFEST_STAGE = {
+    "prepare_overrides": "prepare",
+    "render_overrides": "render",
+    "augment_overrides": "augment",
+    "shard_overrides": "shards",
+    "fit_overrides": "fit",
+}
 
 
 class UnknownPreset(ValueError):
@@ -60,14 +66,15 @@ def apply_preset(name: str, values: dict[str, Any], defaults: dict[str, Any]) ->
     for field, value in preset(name).items():
         if isinstance(value, dict):
             out[field] = {**value, **(values.get(field) or {})}
-        elif values.get(field, defaults.get(field)) == defaults.get(field):
+        elif values[field] == defaults[field]:
             out[field] = value
     return out
 
 
 def manifest_differences(name: str, settings: dict[str, Any]) -> list[str]:
     """How a category's manifest ``settings`` differ from build preset ``name``: one
-    ``"where: built value (preset value)"`` item per difference; [] when they agree."""
+    ``"where built value (preset value)"`` item per difference; [] when they agree. Both sides
+    are JSON values (the presets spell ranges as lists), so ``==`` compares them."""
     out = []
     for field, value in preset(name).items():
         if isinstance(value, dict):
@@ -78,12 +85,5 @@ def manifest_differences(name: str, settings: dict[str, Any]) -> list[str]:
             for part in _MANIFEST_PATH[field]:
                 node = node.get(part) if isinstance(node, dict) else None
             pairs = [(".".join(_MANIFEST_PATH[field]), node, value)]
-        out += [f"{where} {built!r} (preset {want!r})" for where, built, want in pairs if not _same(built, want)]
+        out += [f"{where} {built!r} (preset {want!r})" for where, built, want in pairs if built != want]
     return out
-
-
-def _same(a: Any, b: Any) -> bool:
-    """Equal as JSON values are: a list and a tuple of the same numbers agree, and 20 equals 20.0."""
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    return a == b
