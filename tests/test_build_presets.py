@@ -93,3 +93,70 @@ def test_every_presets_build_agrees_with_the_preset(tmp_path: Path) -> None:
         built = json.loads(json.dumps(BuildSettings(preset=name, work_dir=tmp_path).manifest_settings()))
         assert manifest_differences(name, built) == [], name
     assert manifest_differences("airplane", built)  # the mug's build is not the airplane's
+
+
+def test_per_category_gives_each_category_the_preset_of_its_name(tmp_path: Path) -> None:
+    from workflows.validate import BuildParameterError, category_build
+
+    each = BuildSettings(preset="per-category", models_per_category=3, work_dir=tmp_path)
+    assert each.render_settings().elevation_range == (-10.0, 40.0)  # the build itself resolves nothing
+    for name in PRESETS:
+        assert each.for_category(name) == BuildSettings(preset=name, models_per_category=3, work_dir=tmp_path)
+    assert each.for_category("airplane").render_settings().view_area_fraction == 0.8
+    assert each.for_category("bathtub").render_settings().elevation_range == (20.0, 60.0)
+    plain = BuildSettings(preset="mug", work_dir=tmp_path)
+    assert plain.for_category("airplane") is plain  # a named preset applies to every category
+    with pytest.raises(BuildParameterError, match=r"^--preset: per-category: category 'chair' has no build preset"):
+        category_build(each, "chair")
+
+
+def test_a_folder_category_without_a_preset_stops_a_per_category_build(tmp_path: Path) -> None:
+    from workflows.tasks import BuildDataset
+    from workflows.validate import BuildParameterError
+
+    for name in ("mug", "chair"):
+        (tmp_path / "src" / name).mkdir(parents=True)
+        (tmp_path / "src" / name / "a.obj").write_text(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
+        )
+    dirs = dict(work_dir=str(tmp_path / "w"), dataset_dir=str(tmp_path / "d"), source=str(tmp_path / "src"))
+    with pytest.raises(BuildParameterError, match="'chair' has no build preset"):
+        BuildDataset(preset="per-category", **dirs)
+    assert BuildDataset(preset="per-category", categories="mug", **dirs).requires()[0].build.views == 4
+
+
+def test_one_build_dataset_builds_every_category_with_its_preset(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    from pipeline.core.build_presets import manifest_differences
+    from workflows.tasks import BuildCategory
+
+    small = dict(models_per_category=1, views=1, variants=1, image_size=64, out_size=64)
+    dirs = dict(work_dir=str(tmp_path / "w"), dataset_dir=str(tmp_path / "d"))
+    flags = [f"--{k.replace('_', '-')}={v}" for k, v in {**small, **dirs}.items()]
+    root = Path(__file__).resolve().parents[1]
+    cmd = [str(Path(sys.executable).parent / "luigi"), "--module", "workflows", "BuildDataset", "--local-scheduler"]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    run = subprocess.run(
+        cmd + ["--preset", "per-category", "--categories", "airplane,bathtub", *flags],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    for name in ("airplane", "bathtub"):
+        assert f"\n{name:<12}     1      0" in run.stdout  # the summary counts both
+        settings = json.loads((tmp_path / "d" / name / "category.json").read_text())["settings"]
+        # what differs from the category's own preset is the user's flags, nothing of the other's
+        assert manifest_differences(name, settings) == [
+            "models_per_category 1 (preset 1000)",
+            "render.views 1 (preset 4)",
+            "augment.variants 1 (preset 2)",
+        ]
+        # the same data as the category built on its own with its preset: nothing left to do
+        assert BuildCategory(category=name, preset=name, **small, **dirs).complete()
+    assert not BuildCategory(category="bathtub", **small, **dirs).complete()

@@ -17,7 +17,14 @@ import os
 from pathlib import Path
 
 from augment.settings import AugmentSettings
-from pipeline.core.build_presets import PRESETS, UnknownPreset, apply_preset
+from pipeline.core.build_presets import (
+    PER_CATEGORY,
+    PRESETS,
+    NoCategoryPreset,
+    UnknownPreset,
+    apply_preset,
+    category_preset,
+)
 from pipeline.core.fit_settings import PatchFitSettings
 from pipeline.core.settings_io import SettingError, from_dict, parse_json_object, setting
 from pipeline.core.stage_keys import settings_dict, settings_hash, stage_key
@@ -116,7 +123,10 @@ class BuildSettings:
     source: str = setting("procedural", "'procedural' or a ShapeNet / <root>/<category>/ folder")
     # A named build (pipeline.core.build_presets): fills the settings left at their defaults
     preset: str = setting(
-        "", "a named build, the data of a category's quality-table row: " + ", ".join(PRESETS) + " (flags win)"
+        "",
+        "a named build, the data of a category's quality-table row: "
+        + ", ".join(PRESETS)
+        + f", or {PER_CATEGORY} (each category its own) (flags win)",
     )
     models_per_category: int = setting(16, "models per category (0 = all)")
     views: int = setting(RenderSettings.views, "rendered views per model")
@@ -146,7 +156,7 @@ class BuildSettings:
     )  # scheduling only, never outputs
 
     def __post_init__(self) -> None:
-        if self.preset:
+        if self.preset and self.preset != PER_CATEGORY:  # per category: for_category() resolves
             self._resolve_preset()
         # here, not in the command line's checks, so library callers are refused alike
         for attr, low in MINIMUMS.items():
@@ -174,6 +184,11 @@ class BuildSettings:
             if k in jsons:
                 v = json.dumps(v, sort_keys=True) if v else ""
             object.__setattr__(self, k, v)
+
+    def for_category(self, category: str) -> "BuildSettings":
+        """The settings ``category`` is built with: these, or under ``--preset per-category`` these
+        with the category's own preset (SettingError naming ``preset`` when it has none)."""
+        return _for_category(self, category) if self.preset == PER_CATEGORY else self
 
     # ---- per-stage settings
     @property
@@ -322,3 +337,12 @@ class BuildSettings:
             except ValueError:
                 continue
         return str(path)
+
+
+@functools.lru_cache(maxsize=64)
+def _for_category(s: BuildSettings, category: str) -> BuildSettings:
+    # cached: the console and the completeness checks ask once per category and tick
+    try:
+        return dataclasses.replace(s, preset=category_preset(s.preset, category))
+    except NoCategoryPreset as exc:
+        raise SettingError(str(exc), "BuildSettings", "preset") from None

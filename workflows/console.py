@@ -68,19 +68,20 @@ def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int,
     finished batch counts whole (its upstream failures included); a running one counts the
     models with a record."""
     out = {}
+    builds = [(s.for_category(lst["category"]), lst) for lst in listings]
     for stage in build_stages(s):
-        root = s.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
         done = total = 0
-        for lst in listings:
+        for cs, lst in builds:
+            root = cs.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
             total += len(lst["models"])
-            for b in range(steps.n_batches(len(lst["models"]), s.batch_size)):
-                models = steps.batch_models(s, lst, b)
-                if (root / lst["category"] / steps.BATCHES / steps.batch_name(s, lst, b)).exists():
+            for b in range(steps.n_batches(len(lst["models"]), cs.batch_size)):
+                models = steps.batch_models(cs, lst, b)
+                if (root / lst["category"] / steps.BATCHES / steps.batch_name(cs, lst, b)).exists():
                     done += len(models)
                 else:
                     done += sum((model_dir(root, lst["category"], m["work_id"]) / RECORD).exists() for m in models)
         out[stage] = (done, total)
-    out["shards"] = (sum(not steps.category_problems(s, lst) for lst in listings), len(listings))
+    out["shards"] = (sum(not steps.category_problems(cs, lst) for cs, lst in builds), len(listings))
     return out
 
 
@@ -176,9 +177,10 @@ class StageCounter:
     def __init__(self, s: BuildSettings, listings: list[dict], task_ids: dict[str, tuple[str, str, int]]) -> None:
         self.s, self.listings, self.task_ids = s, listings, task_ids
         self.total = sum(len(lst["models"]) for lst in listings)
+        builds = [(s.for_category(lst["category"]), lst) for lst in listings]
         self.stages = {
-            stage: {lst["category"]: _StageBatches(s, root, lst) for lst in listings}
-            for stage, root in ((x, s.stage_dir(x)) for x in build_stages(s))
+            stage: {lst["category"]: _StageBatches(cs, cs.stage_dir(stage), lst) for cs, lst in builds}
+            for stage in build_stages(s)
         }
         runs = Path(s.work_dir) / steps.RUNS
         self.runs = _Cached((runs,), _names(runs))
@@ -187,7 +189,8 @@ class StageCounter:
 
     def _shards_current(self, lst: dict) -> _Cached:
         cat = Path(self.s.dataset_dir) / lst["category"]
-        return _Cached((cat, cat / FRAGMENT), lambda: not steps.category_problems(self.s, lst))
+        cs = self.s.for_category(lst["category"])
+        return _Cached((cat, cat / FRAGMENT), lambda: not steps.category_problems(cs, lst))
 
     def counts(self) -> dict[str, tuple[int, int]]:
         runs = self.runs.get()

@@ -458,19 +458,20 @@ def read_runs(work_dir: Path) -> dict[str, list[dict]]:
 
 def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
+    builds = [(s.for_category(lst["category"]), lst) for lst in listings]
     out = {}
     for stage in ("prepare", "render", "augment") + (("fit",) if s.fit_patches else ()):
         out[stage] = sum(
             read_json(p).get("seconds", 0.0)
-            for lst in listings
-            for b in range(n_batches(len(lst["models"]), s.batch_size))
-            for p in [batch_path(s, stage, lst, b)]
+            for cs, lst in builds
+            for b in range(n_batches(len(lst["models"]), cs.batch_size))
+            for p in [batch_path(cs, stage, lst, b)]
             if p.exists()
         )
     out["shards"] = sum(
         read_json(p)["seconds"]
-        for lst in listings
-        for p in [s.stage_dir("shards") / lst["category"] / "_timing.json"]
+        for cs, lst in builds
+        for p in [cs.stage_dir("shards") / lst["category"] / "_timing.json"]
         if p.exists()
     )
     return out
@@ -519,7 +520,9 @@ def category_problems(s: BuildSettings, lst: dict, checksums: bool = False) -> l
 def manifest_is_current(s: BuildSettings, listings: list[dict], checksums: bool = False) -> bool:
     """Are these categories current, none of the source's gone, and manifest.json exactly the
     merge of the fragments present?"""
-    if any(category_problems(s, lst, checksums) for lst in listings) or gone_categories(s):
+    if any(category_problems(s.for_category(lst["category"]), lst, checksums) for lst in listings) or gone_categories(
+        s
+    ):
         return False
     try:
         return read_manifest(Path(s.dataset_dir)) == build_manifest(Path(s.dataset_dir))

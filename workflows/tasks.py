@@ -52,6 +52,11 @@ class _ListedTask(_BuildTask):
     listing = luigi.Parameter(description="key of the category's model list (set by BuildCategory)")
 
     @functools.cached_property
+    def build(self) -> BuildSettings:
+        # under --preset per-category each category's tasks build with the preset of its name
+        return validate.category_build(validate.build_settings(settings_values(BuildSettings, self)), self.category)
+
+    @functools.cached_property
     def lst(self) -> dict:
         # read once per task: a list is immutable under its key, and the scheduler asks every
         # task for its output() (which needs the list) before anything runs
@@ -176,12 +181,14 @@ class _BuildRoot(_BuildTask):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         validate.check_categories(self.build, self.category_list())
+        for c in self.category_list():
+            validate.check_settings(validate.category_build(self.build, c))
         validate.check_fraction(self.max_failed_fraction)
         validate.check_dataset_dir(self.build, self.category_list())
 
     def listings(self) -> list[dict]:
         """Each category's model list as the source is now (re-read on every call)."""
-        return [current_listing(self.build, c) for c in self.category_list()]
+        return [current_listing(self.build.for_category(c), c) for c in self.category_list()]
 
     def requires(self):
         return [self.clone(CategoryShards, category=lst["category"], listing=lst["key"]) for lst in self.listings()]

@@ -43,6 +43,15 @@ def build_settings(values: dict[str, Any]) -> BuildSettings:
         raise BuildParameterError(_named(exc)) from None
 
 
+def category_build(s: BuildSettings, category: str) -> BuildSettings:
+    """The settings ``category`` is built with (BuildSettings.for_category): under ``--preset
+    per-category`` a category without a preset of its name is an error naming ``--preset``."""
+    try:
+        return s.for_category(category)
+    except SettingError as exc:
+        raise BuildParameterError(_named(exc)) from None
+
+
 def _named(exc: SettingError) -> str:
     """The error as one line that starts with the flag: a range error ("views must be ...")
     becomes "--views must be ...", any other "--views: ..."."""

@@ -2,7 +2,8 @@
 ``train.recipes``).
 
 ``luigi --module workflows BuildCategory --category bathtub --preset bathtub --local-scheduler``
-builds the data the bathtub recipe was measured on; ``python -m train fit --recipe bathtub`` then
+builds the data the bathtub recipe was measured on (``BuildDataset --preset per-category``: every
+category's at once); ``python -m train fit --recipe bathtub`` then
 reproduces its row, and says so when the dataset it is given was built otherwise. A preset
 fills the build settings the user left at their defaults; a flag given another value wins, and
 keys of a settings JSON (``--render-settings``) win over the preset's keys of that stage. The
@@ -31,6 +32,10 @@ BUILD_PRESETS: dict[str, dict[str, Any]] = {
     **{c: {**_ROW, "render_overrides": dict(_EMBREE)} for c in ("bottle", "car", "guitar", "gun", "knife", "mug")},
 }
 PRESETS: tuple[str, ...] = tuple(sorted(BUILD_PRESETS))
+# Not a preset of its own: each category of a build takes the preset of its name, so one
+# BuildDataset builds every category's quality-table data (the airplane's views for the airplane,
+# the bathtub's for the bathtub).
+PER_CATEGORY = "per-category"
 
 # Where each preset value lands in a category's manifest settings (manifest.json "categories").
 _MANIFEST_PATH = {
@@ -49,7 +54,25 @@ _MANIFEST_STAGE = {
 
 class UnknownPreset(ValueError):
     def __init__(self, name: str) -> None:
-        super().__init__(f"unknown preset {name!r}: expected one of {', '.join(PRESETS)}")
+        super().__init__(f"unknown preset {name!r}: expected one of {', '.join(PRESETS + (PER_CATEGORY,))}")
+
+
+class NoCategoryPreset(ValueError):
+    def __init__(self, category: str) -> None:
+        super().__init__(
+            f"{PER_CATEGORY}: category {category!r} has no build preset (presets: {', '.join(PRESETS)}); "
+            "build it on its own, or name one preset for every category"
+        )
+
+
+def category_preset(name: str, category: str) -> str:
+    """The preset a build named ``name`` applies to ``category``: ``category`` itself under
+    PER_CATEGORY (NoCategoryPreset when there is none of that name), else ``name``."""
+    if name != PER_CATEGORY:
+        return name
+    if category not in BUILD_PRESETS:
+        raise NoCategoryPreset(category)
+    return category
 
 
 def preset(name: str) -> dict[str, Any]:
