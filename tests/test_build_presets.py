@@ -10,7 +10,9 @@ import pytest
 from pipeline.core.build_presets import PRESETS
 from workflows.build_settings import BuildSettings
 
-SPELLED_OUT = dict(models_per_category=1000, render_overrides='{"backend": "embree", "elevation_range": [20, 60]}')
+SPELLED_OUT = dict(
+    models_per_category=1000, fit_patches=True, render_overrides='{"backend": "embree", "elevation_range": [20, 60]}'
+)
 
 
 def test_a_preset_is_the_same_build_as_its_settings_spelled_out(tmp_path: Path) -> None:
@@ -77,7 +79,7 @@ def test_fit_says_when_its_dataset_was_not_built_with_the_recipes_preset(tmp_pat
     assert note is not None and "--preset bathtub" in note
     for words in ("render.elevation_range [-10.0, 40.0] (preset [20.0, 60.0])", "render.backend 'freestyle'"):
         assert words in note
-    assert "models_per_category 16 (preset 1000)" in note
+    assert "models_per_category 16 (preset 1000)" in note and "fit_patches False (preset True)" in note
     _fit(["--recipe", "bathtub", "--dataset", str(other), "--out", "o"])
     assert "--preset bathtub" in capsys.readouterr().err
     same = _category(tmp_path / "preset", BuildSettings(preset="bathtub", work_dir=tmp_path))
@@ -157,6 +159,7 @@ def test_one_build_dataset_builds_every_category_with_its_preset(tmp_path: Path)
             "render.views 1 (preset 4)",
             "augment.variants 1 (preset 2)",
         ]
+        assert ("fit" in settings) == (name == "bathtub")  # the bathtub's preset fits every model
         # the same data as the category built on its own with its preset: nothing left to do
         assert BuildCategory(category=name, preset=name, **small, **dirs).complete()
     assert not BuildCategory(category="bathtub", **small, **dirs).complete()

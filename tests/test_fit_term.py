@@ -202,7 +202,7 @@ def test_fit_options_refuse_a_dataset_without_fits(tmp_path: Path, option: dict,
         encoder_width=8,
         **option,
     )
-    with pytest.raises(UsageError, match=f"{flag} needs fitted patches.*--fit-patches"):
+    with pytest.raises(UsageError, match=f"{flag} needs fitted patches.*--fit-patches, or give {flag} 0"):
         fit(s, progress=False)
 
 

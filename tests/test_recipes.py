@@ -41,6 +41,8 @@ def test_recipes_hold_their_rows_settings() -> None:
     # the paper's loss on both drawings of each sample where the categories underfit
     assert {n for n in RECIPES if recipe(n).pair_loss} == {"bathtub", "guitar"}
     assert recipe("guitar").pair_loss == 1.0
+    # the readout of the fit stage's fits where it read more at each of three seeds (its preset fits)
+    assert {n: recipe(n).fit_readout for n in RECIPES if recipe(n).fit_readout} == {"bathtub": 10.0}
     # the fold term where it kept the CAD kernel's verdict at no cost to the row
     assert {n: recipe(n).weights.fold for n in RECIPES} == {
         n: 1.0 if n in {"airplane", "bathtub", "car", "guitar", "gun", "knife", "mug"} else 0.0 for n in RECIPES

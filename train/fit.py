@@ -738,7 +738,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
         flag = "--w-fit" if settings.weights.fit else "--fit-readout"
         raise UsageError(
             f"{settings.dataset}: {flag} needs fitted patches, and the {settings.category} shards have none "
-            "(build the dataset with --fit-patches)"
+            f"(build the dataset with --fit-patches, or give {flag} 0)"
         )
     net.train()
     last = None  # null in the result when no step runs (a resume already at --steps)
