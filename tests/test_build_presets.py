@@ -163,3 +163,12 @@ def test_one_build_dataset_builds_every_category_with_its_preset(tmp_path: Path)
         # the same data as the category built on its own with its preset: nothing left to do
         assert BuildCategory(category=name, preset=name, **small, **dirs).complete()
     assert not BuildCategory(category="bathtub", **small, **dirs).complete()
+    # the progress line counts each category in its own stages: the fit stage is the bathtub's only
+    from workflows.console import StageCounter, batch_task_ids, stage_counts
+    from workflows.tasks import BuildDataset
+
+    both = BuildDataset(preset="per-category", categories="airplane,bathtub", **small, **dirs)
+    listings = both.listings()
+    want = {"prepare": (2, 2), "render": (2, 2), "augment": (2, 2), "fit": (1, 1), "shards": (2, 2)}
+    assert stage_counts(both.build, listings) == want
+    assert StageCounter(both.build, listings, batch_task_ids(both, listings)).counts() == want

@@ -49,12 +49,25 @@ def wrap(text: str, indent: str = "    ") -> str:
     return textwrap.fill(text, WIDTH, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
-STAGE_TASKS = {"prepare": "PrepareBatch", "fit": "FitBatch", "render": "RenderBatch", "augment": "AugmentBatch"}
+# in build order (BuildSettings.stages), which the progress line keeps
+STAGE_TASKS = {"prepare": "PrepareBatch", "render": "RenderBatch", "augment": "AugmentBatch", "fit": "FitBatch"}
 
 
 def build_stages(s: BuildSettings) -> tuple[str, ...]:
     """The per-model stages this build runs (its batch tasks), in the build's order."""
     return tuple(stage for stage in s.stages() if stage in STAGE_TASKS)
+
+
+def category_builds(s: BuildSettings, listings: list[dict]) -> list[tuple[BuildSettings, dict]]:
+    """Each category list with the settings it is built with (``--preset per-category``: its own)."""
+    return [(s.for_category(lst["category"]), lst) for lst in listings]
+
+
+def stages_of(builds: list[tuple[BuildSettings, dict]]) -> tuple[str, ...]:
+    """The per-model stages any of these categories runs, in build order (the fit stage where a
+    category's preset fits and another's does not)."""
+    runs = {stage for cs, _ in builds for stage in build_stages(cs)}
+    return tuple(stage for stage in STAGE_TASKS if stage in runs)
 
 
 # A folder or file looked at less than this long after its last change is looked at again on the
@@ -68,10 +81,12 @@ def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int,
     finished batch counts whole (its upstream failures included); a running one counts the
     models with a record."""
     out = {}
-    builds = [(s.for_category(lst["category"]), lst) for lst in listings]
-    for stage in build_stages(s):
+    builds = category_builds(s, listings)
+    for stage in stages_of(builds):
         done = total = 0
         for cs, lst in builds:
+            if stage not in build_stages(cs):
+                continue
             root = cs.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
             total += len(lst["models"])
             for b in range(steps.n_batches(len(lst["models"]), cs.batch_size)):
@@ -176,11 +191,17 @@ class StageCounter:
 
     def __init__(self, s: BuildSettings, listings: list[dict], task_ids: dict[str, tuple[str, str, int]]) -> None:
         self.s, self.listings, self.task_ids = s, listings, task_ids
-        self.total = sum(len(lst["models"]) for lst in listings)
-        builds = [(s.for_category(lst["category"]), lst) for lst in listings]
+        builds = category_builds(s, listings)
         self.stages = {
-            stage: {lst["category"]: _StageBatches(cs, cs.stage_dir(stage), lst) for cs, lst in builds}
-            for stage in build_stages(s)
+            stage: {
+                lst["category"]: _StageBatches(cs, cs.stage_dir(stage), lst)
+                for cs, lst in builds
+                if stage in build_stages(cs)
+            }
+            for stage in stages_of(builds)
+        }
+        self.totals = {
+            stage: sum(len(b.lst["models"]) for b in by_cat.values()) for stage, by_cat in self.stages.items()
         }
         runs = Path(s.work_dir) / steps.RUNS
         self.runs = _Cached((runs,), _names(runs))
@@ -199,7 +220,9 @@ class StageCounter:
                 stage, category, batch = self.task_ids[task_id]
                 self.stages[stage][category].start(batch)
         self.runs_seen = runs
-        out = {stage: (sum(b.done() for b in by_cat.values()), self.total) for stage, by_cat in self.stages.items()}
+        out = {
+            stage: (sum(b.done() for b in by_cat.values()), self.totals[stage]) for stage, by_cat in self.stages.items()
+        }
         out["shards"] = (sum(bool(c.get()) for c in self.shards), len(self.listings))
         return out
 
@@ -214,7 +237,7 @@ def batch_task_ids(root: luigi.Task, listings: list[dict]) -> dict[str, tuple[st
     out = {}
     for lst in listings:
         shards = root.clone(tasks.CategoryShards, category=lst["category"], listing=lst["key"])
-        for stage in build_stages(root.build):
+        for stage in build_stages(shards.build):
             cls = getattr(tasks, STAGE_TASKS[stage])
             params = shards.clone(cls, batch=0).to_str_params(only_significant=True, only_public=True)
             for b in range(steps.n_batches(len(lst["models"]), root.build.batch_size)):

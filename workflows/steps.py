@@ -460,10 +460,12 @@ def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
     builds = [(s.for_category(lst["category"]), lst) for lst in listings]
     out = {}
-    for stage in ("prepare", "render", "augment") + (("fit",) if s.fit_patches else ()):
+    fits = any(cs.fit_patches for cs, _ in builds)
+    for stage in ("prepare", "render", "augment") + (("fit",) if fits else ()):
         out[stage] = sum(
             read_json(p).get("seconds", 0.0)
             for cs, lst in builds
+            if stage in cs.stages()
             for b in range(n_batches(len(lst["models"]), cs.batch_size))
             for p in [batch_path(cs, stage, lst, b)]
             if p.exists()
