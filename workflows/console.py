@@ -58,11 +58,6 @@ def build_stages(s: BuildSettings) -> tuple[str, ...]:
     return tuple(stage for stage in s.stages() if stage in STAGE_TASKS)
 
 
-def category_builds(s: BuildSettings, listings: list[dict]) -> list[tuple[BuildSettings, dict]]:
-    """Each category list with the settings it is built with (``--preset per-category``: its own)."""
-    return [(s.for_category(lst["category"]), lst) for lst in listings]
-
-
 def stages_of(builds: list[tuple[BuildSettings, dict]]) -> tuple[str, ...]:
     """The per-model stages any of these categories runs, in build order (the fit stage where a
     category's preset fits and another's does not)."""
@@ -81,7 +76,7 @@ def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int,
     finished batch counts whole (its upstream failures included); a running one counts the
     models with a record."""
     out = {}
-    builds = category_builds(s, listings)
+    builds = steps.category_builds(s, listings)
     for stage in stages_of(builds):
         done = total = 0
         for cs, lst in builds:
@@ -191,7 +186,7 @@ class StageCounter:
 
     def __init__(self, s: BuildSettings, listings: list[dict], task_ids: dict[str, tuple[str, str, int]]) -> None:
         self.s, self.listings, self.task_ids = s, listings, task_ids
-        builds = category_builds(s, listings)
+        builds = steps.category_builds(s, listings)
         self.stages = {
             stage: {
                 lst["category"]: _StageBatches(cs, cs.stage_dir(stage), lst)

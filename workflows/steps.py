@@ -456,9 +456,14 @@ def read_runs(work_dir: Path) -> dict[str, list[dict]]:
     return out
 
 
+def category_builds(s: BuildSettings, listings: list[dict]) -> list[tuple[BuildSettings, dict]]:
+    """Each category list with the settings it is built with (``--preset per-category``: its own)."""
+    return [(s.for_category(lst["category"]), lst) for lst in listings]
+
+
 def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
-    builds = [(s.for_category(lst["category"]), lst) for lst in listings]
+    builds = category_builds(s, listings)
     out = {}
     fits = any(cs.fit_patches for cs, _ in builds)
     for stage in ("prepare", "render", "augment") + (("fit",) if fits else ()):
@@ -522,9 +527,7 @@ def category_problems(s: BuildSettings, lst: dict, checksums: bool = False) -> l
 def manifest_is_current(s: BuildSettings, listings: list[dict], checksums: bool = False) -> bool:
     """Are these categories current, none of the source's gone, and manifest.json exactly the
     merge of the fragments present?"""
-    if any(category_problems(s.for_category(lst["category"]), lst, checksums) for lst in listings) or gone_categories(
-        s
-    ):
+    if any(category_problems(cs, lst, checksums) for cs, lst in category_builds(s, listings)) or gone_categories(s):
         return False
     try:
         return read_manifest(Path(s.dataset_dir)) == build_manifest(Path(s.dataset_dir))
