@@ -49,20 +49,7 @@ def wrap(text: str, indent: str = "    ") -> str:
     return textwrap.fill(text, WIDTH, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
-# in build order (BuildSettings.stages), which the progress line keeps
 STAGE_TASKS = {"prepare": "PrepareBatch", "render": "RenderBatch", "augment": "AugmentBatch", "fit": "FitBatch"}
-
-
-def build_stages(s: BuildSettings) -> tuple[str, ...]:
-    """The per-model stages this build runs (its batch tasks), in the build's order."""
-    return tuple(stage for stage in s.stages() if stage in STAGE_TASKS)
-
-
-def stages_of(builds: list[tuple[BuildSettings, dict]]) -> tuple[str, ...]:
-    """The per-model stages any of these categories runs, in build order (the fit stage where a
-    category's preset fits and another's does not)."""
-    runs = {stage for cs, _ in builds for stage in build_stages(cs)}
-    return tuple(stage for stage in STAGE_TASKS if stage in runs)
 
 
 # A folder or file looked at less than this long after its last change is looked at again on the
@@ -77,10 +64,10 @@ def stage_counts(s: BuildSettings, listings: list[dict]) -> dict[str, tuple[int,
     models with a record."""
     out = {}
     builds = steps.category_builds(s, listings)
-    for stage in stages_of(builds):
+    for stage in steps.stages_of(builds):
         done = total = 0
         for cs, lst in builds:
-            if stage not in build_stages(cs):
+            if stage not in steps.batch_stages(cs):
                 continue
             root = cs.stage_dir(stage)  # once per stage, not per model: it re-derives the key chain
             total += len(lst["models"])
@@ -191,9 +178,9 @@ class StageCounter:
             stage: {
                 lst["category"]: _StageBatches(cs, cs.stage_dir(stage), lst)
                 for cs, lst in builds
-                if stage in build_stages(cs)
+                if stage in steps.batch_stages(cs)
             }
-            for stage in stages_of(builds)
+            for stage in steps.stages_of(builds)
         }
         self.totals = {
             stage: sum(len(b.lst["models"]) for b in by_cat.values()) for stage, by_cat in self.stages.items()
@@ -201,11 +188,10 @@ class StageCounter:
         runs = Path(s.work_dir) / steps.RUNS
         self.runs = _Cached((runs,), _names(runs))
         self.runs_seen: frozenset[str] = frozenset()
-        self.shards = [self._shards_current(lst) for lst in listings]
+        self.shards = [self._shards_current(cs, lst) for cs, lst in builds]
 
-    def _shards_current(self, lst: dict) -> _Cached:
-        cat = Path(self.s.dataset_dir) / lst["category"]
-        cs = self.s.for_category(lst["category"])
+    def _shards_current(self, cs: BuildSettings, lst: dict) -> _Cached:
+        cat = Path(cs.dataset_dir) / lst["category"]
         return _Cached((cat, cat / FRAGMENT), lambda: not steps.category_problems(cs, lst))
 
     def counts(self) -> dict[str, tuple[int, int]]:
@@ -232,7 +218,7 @@ def batch_task_ids(root: luigi.Task, listings: list[dict]) -> dict[str, tuple[st
     out = {}
     for lst in listings:
         shards = root.clone(tasks.CategoryShards, category=lst["category"], listing=lst["key"])
-        for stage in build_stages(shards.build):
+        for stage in steps.batch_stages(shards.build):
             cls = getattr(tasks, STAGE_TASKS[stage])
             params = shards.clone(cls, batch=0).to_str_params(only_significant=True, only_public=True)
             for b in range(steps.n_batches(len(lst["models"]), root.build.batch_size)):

@@ -461,16 +461,31 @@ def category_builds(s: BuildSettings, listings: list[dict]) -> list[tuple[BuildS
     return [(s.for_category(lst["category"]), lst) for lst in listings]
 
 
+# The stages that run per batch of models, in build order (BuildSettings.stages)
+BATCH_STAGES = ("prepare", "render", "augment", "fit")
+
+
+def batch_stages(s: BuildSettings) -> tuple[str, ...]:
+    """The batch stages this build runs (the fit stage only with --fit-patches)."""
+    return tuple(stage for stage in s.stages() if stage in BATCH_STAGES)
+
+
+def stages_of(builds: list[tuple[BuildSettings, dict]]) -> tuple[str, ...]:
+    """The batch stages any of these categories runs, in build order (the fit stage where one
+    category's preset fits and another's does not)."""
+    runs = {stage for cs, _ in builds for stage in batch_stages(cs)}
+    return tuple(stage for stage in BATCH_STAGES if stage in runs)
+
+
 def stage_seconds(s: BuildSettings, listings: list[dict]) -> dict[str, float]:
     """Wall seconds spent per stage by the batch tasks of these category lists (from _batches/)."""
     builds = category_builds(s, listings)
     out = {}
-    fits = any(cs.fit_patches for cs, _ in builds)
-    for stage in ("prepare", "render", "augment") + (("fit",) if fits else ()):
+    for stage in stages_of(builds):
         out[stage] = sum(
             read_json(p).get("seconds", 0.0)
             for cs, lst in builds
-            if stage in cs.stages()
+            if stage in batch_stages(cs)
             for b in range(n_batches(len(lst["models"]), cs.batch_size))
             for p in [batch_path(cs, stage, lst, b)]
             if p.exists()

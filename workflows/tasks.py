@@ -181,8 +181,9 @@ class _BuildRoot(_BuildTask):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         validate.check_categories(self.build, self.category_list())
-        for c in self.category_list():
-            validate.check_settings(validate.category_build(self.build, c))
+        # under --preset per-category each category's own settings (the root's were checked above)
+        for cs in {validate.category_build(self.build, c) for c in self.category_list()} - {self.build}:
+            validate.check_settings(cs)
         validate.check_fraction(self.max_failed_fraction)
         validate.check_dataset_dir(self.build, self.category_list())
 
