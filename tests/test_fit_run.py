@@ -94,6 +94,11 @@ def test_evaluate_reports_every_metric_for_model_and_template(shards, tmp_path):
         assert set(metric_names((0.02, 0.05))) <= set(res[who]) and all(v == v for v in res[who].values())
     assert res["template"]["chamfer"] > 0 and res["template"]["chamfer_sq_x1000"] > 0
     assert (tmp_path / "eval.json").exists() and "blind" in format_table(res).splitlines()[0]
+    for base in ("template", "blind"):  # the ratios the goals are set on, with their interval over the shapes
+        r = res[f"chamfer_vs_{base}"]
+        assert r["change"] == pytest.approx(res["model"]["chamfer"] / res[base]["chamfer"] - 1, abs=1e-6)
+        assert r["low"] <= r["change"] <= r["high"]
+        assert f"L_Ch vs {base}: {100 * r['change']:+.1f} %" in format_table(res)
 
 
 def test_blind_baseline_is_the_mean_train_output(shards, tmp_path):

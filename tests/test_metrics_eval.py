@@ -7,7 +7,7 @@ import torch
 from train.geometry import patch_from_corners, sample_surface_uniform
 from train.geometry.intersections import count_intersecting_pairs, triangles_intersect
 from train.geometry.patch_pairs import collision_pairs, unconnected_pairs
-from train.metrics import chamfer_l2_x1000, chamfer_loss_style, fscore, normal_consistency
+from train.metrics import chamfer_l2_x1000, chamfer_loss_style, fscore, normal_consistency, relative_change_interval
 from train.templates import sphere24, sphere54
 
 torch.set_num_threads(1)
@@ -70,3 +70,22 @@ def test_count_intersecting_pairs():
     crossing = patch_from_corners(torch.stack([horizontal, vertical, vertical + 5.0]))
     assert count_intersecting_pairs(crossing, unconnected_pairs(3)) == 1
     assert count_intersecting_pairs(crossing, unconnected_pairs(3), torch.tensor([True, False, True])) == 0
+
+
+def test_relative_change_interval_is_the_ratio_of_means_with_a_seeded_bootstrap_around_it():
+    gen = torch.Generator().manual_seed(0)
+    base = 0.08 + 0.02 * torch.rand(400, generator=gen)
+    values = base * (0.75 + 0.2 * torch.randn(400, generator=gen))  # 25 % below, shape by shape noisy
+    r = relative_change_interval(values[:100], base[:100])
+    assert r["change"] == pytest.approx(float(values[:100].mean() / base[:100].mean() - 1))
+    assert r["low"] < r["change"] < r["high"] and r["level"] == 0.95
+    assert r == relative_change_interval(values[:100], base[:100])  # seeded: the same figures each call
+    wide = r["high"] - r["low"]
+    # four times the shapes, about half the width (1/sqrt(n))
+    r4 = relative_change_interval(values, base)
+    assert 0.35 * wide < r4["high"] - r4["low"] < 0.7 * wide
+    # a paired resample: a network exactly as good as its baseline on every shape has no width
+    same = relative_change_interval(base, base)
+    assert same["change"] == 0 and same["low"] == pytest.approx(0) and same["high"] == pytest.approx(0)
+    with pytest.raises(ValueError, match="equal"):
+        relative_change_interval(values, base[:10])

@@ -37,7 +37,7 @@ from train.fit import load_run
 from train.geometry.intersections import count_intersecting_pairs
 from train.geometry.sampling import sample_surface_uniform
 from train.losses.weights import LossWeights
-from train.metrics import chamfer_l2_x1000, fscore, normal_consistency
+from train.metrics import chamfer_l2_x1000, fscore, normal_consistency, relative_change_interval
 from train.mirror_average import mirror_averaged
 from train.objective import Objective
 
@@ -218,7 +218,9 @@ def evaluate(
     answers through :class:`train.mirror_average.MirrorAverage`, for the sketches and the blind
     mean alike. ``points``: sample points per shape for the metrics (default: the run's).
     ``steady``: the network answers as ``predict`` does, through
-    :class:`train.augmentation.SteadyAverage`, for the sketches and the blind mean alike."""
+    :class:`train.augmentation.SteadyAverage`, for the sketches and the blind mean alike.
+    ``chamfer_vs_template`` and ``chamfer_vs_blind``: the network's L_Ch relative to each baseline's,
+    with a bootstrap interval over the evaluated shapes (:func:`train.metrics.relative_change_interval`)."""
     check_evaluate_args(views, taus, limit, points)
     if not (isinstance(cad_check, int) and cad_check >= 0):
         raise UsageError(f"cad_check must be an integer >= 0, got {cad_check!r} (--cad-check)")
@@ -243,6 +245,7 @@ def evaluate(
     cat = category or s.category
     blind = blind_output(model, blind_dataset or dataset, cat, data, batch_size)[None]
     sums = {name: {k: 0.0 for k in names} for name in baselines}
+    chamfers: dict[str, list[torch.Tensor]] = {name: [] for name in baselines}
     count = 0
     base = template.initial_params()[None]
     verdicts = []
@@ -253,6 +256,8 @@ def evaluate(
         for name, p in (("model", params), ("template", base.expand_as(params)), ("blind", blind.expand_as(params))):
             for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
                 sums[name][k] += float(v.sum())
+                if k == "chamfer":
+                    chamfers[name].append(v.detach().cpu())
         count += len(batch["key"])
         if limit and count >= limit:
             break
@@ -272,6 +277,10 @@ def evaluate(
         "chamfer_note": "chamfer = paper's unsquared Jacobian-weighted L_Ch; chamfer_sq_x1000 = peers' squared x1000",
         **{name: {k: v / max(count, 1) for k, v in vals.items()} for name, vals in sums.items()},
     }
+    if count:
+        per_shape = {name: torch.cat(v) for name, v in chamfers.items()}
+        for base_name in ("template", "blind"):
+            result[f"chamfer_vs_{base_name}"] = relative_change_interval(per_shape["model"], per_shape[base_name])
     if verdicts:
         result["model"]["cad_clean"] = sum(verdicts) / len(verdicts)
         result["cad_checked"] = len(verdicts)
@@ -291,4 +300,11 @@ def format_table(result: dict) -> str:
     lines = [f"{'metric':<20}" + "".join(f"{c:>14}" for c in cols)]
     for k in result["model"]:
         lines.append(f"{k:<20}" + "".join(f"{result[c][k]:>14.6g}" if k in result[c] else f"{'-':>14}" for c in cols))
+    for base_name in ("template", "blind"):
+        if (r := result.get(f"chamfer_vs_{base_name}")) is not None:
+            lines.append(
+                f"L_Ch vs {base_name}: {100 * r['change']:+.1f} % "
+                f"({100 * r['level']:.0f} % bootstrap interval over the {result['samples']} shapes: "
+                f"{100 * r['low']:+.1f} to {100 * r['high']:+.1f} %)"
+            )
     return "\n".join(lines)
