@@ -254,10 +254,10 @@ def evaluate(
         if len(verdicts) < cad_check:
             verdicts += [v.clean for v in cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])]
         for name, p in (("model", params), ("template", base.expand_as(params)), ("blind", blind.expand_as(params))):
-            for k, v in batch_metrics(objective, p, batch, tuple(taus), generators[name]).items():
+            metrics = batch_metrics(objective, p, batch, tuple(taus), generators[name])
+            for k, v in metrics.items():
                 sums[name][k] += float(v.sum())
-                if k == "chamfer":
-                    chamfers[name].append(v.detach().cpu())
+            chamfers[name].append(metrics["chamfer"].detach().cpu())
         count += len(batch["key"])
         if limit and count >= limit:
             break
