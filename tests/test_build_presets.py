@@ -11,13 +11,13 @@ from pipeline.core.build_presets import PRESETS
 from workflows.build_settings import BuildSettings
 
 SPELLED_OUT = dict(
-    models_per_category=1000, fit_patches=True, render_overrides='{"backend": "embree", "elevation_range": [20, 60]}'
+    models_per_category=2000, fit_patches=True, render_overrides='{"backend": "embree", "elevation_range": [20, 60]}'
 )
 
 
 def test_a_preset_is_the_same_build_as_its_settings_spelled_out(tmp_path: Path) -> None:
     b = BuildSettings(preset="bathtub", work_dir=tmp_path)
-    assert (b.models_per_category, b.views, b.variants) == (1000, 4, 2)
+    assert (b.models_per_category, b.views, b.variants) == (2000, 4, 2)
     assert (b.render_settings().backend, b.render_settings().elevation_range) == ("embree", (20.0, 60.0))
     plain = BuildSettings(**SPELLED_OUT, work_dir=tmp_path)
     for stage in plain.stages():  # the preset's name keys nothing: the same stage folders
@@ -79,7 +79,7 @@ def test_fit_says_when_its_dataset_was_not_built_with_the_recipes_preset(tmp_pat
     assert note is not None and "--preset bathtub" in note
     for words in ("render.elevation_range [-10.0, 40.0] (preset [20.0, 60.0])", "render.backend 'freestyle'"):
         assert words in note
-    assert "models_per_category 16 (preset 1000)" in note and "fit_patches False (preset True)" in note
+    assert "models_per_category 16 (preset 2000)" in note and "fit_patches False (preset True)" in note
     _fit(["--recipe", "bathtub", "--dataset", str(other), "--out", "o"])
     assert "--preset bathtub" in capsys.readouterr().err
     same = _category(tmp_path / "preset", BuildSettings(preset="bathtub", work_dir=tmp_path))
@@ -155,7 +155,7 @@ def test_one_build_dataset_builds_every_category_with_its_preset(tmp_path: Path)
         settings = json.loads((tmp_path / "d" / name / "category.json").read_text())["settings"]
         # what differs from the category's own preset is the user's flags, nothing of the other's
         assert manifest_differences(name, settings) == [
-            "models_per_category 1 (preset 1000)",
+            f"models_per_category 1 (preset {1000 if name == 'airplane' else 2000})",
             "render.views 1 (preset 4)",
             "augment.variants 1 (preset 2)",
         ]

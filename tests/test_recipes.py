@@ -35,7 +35,7 @@ def test_recipes_hold_their_rows_settings() -> None:
     assert all(recipe(name).steps <= 6000 and recipe(name).batch_size == 8 for name in RECIPES)
     assert plane.weights.symmetry == 1.0  # the template's regularizer, kept under the recipe's weights
     assert recipe("bathtub").match_normals == pytest.approx(0.1) and recipe("mug").contrast == 0.1
-    assert (recipe("bathtub").lr, recipe("bathtub").output_lr_scale) == (3e-4, 0.1)
+    assert (recipe("bathtub").lr, recipe("bathtub").output_lr_scale, recipe("bathtub").steps) == (3e-4, 0.1, 6000)
     assert (recipe("mug").output_lr_scale, recipe("mug").steps) == (0.3, 4000)
     assert (recipe("guitar").weights.collision, recipe("guitar").contrast) == (0.3, 0.1)
     # the paper's loss on both drawings of each sample where the categories underfit

@@ -51,11 +51,11 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
         "fold term 1.0 (CAD-clean predictions); its build preset draws views that show the wings",
     ),
     "bathtub": (
-        dict(contrast=0.1, steps=5000, **_SLOW_OUTPUT, **_COSINE, **_PAIR, **_VIEWS, **_READOUT),
+        dict(contrast=0.1, steps=6000, **_SLOW_OUTPUT, **_COSINE, **_PAIR, **_VIEWS, **_READOUT),
         _FOLD,
         "contrast 0.1, cosine decay from 3e-4, the output layer at 0.1 of it, fold term 1.0 (CAD-clean predictions), "
         "the loss on both drawings of each sample, one to four views a sample, the fit stage's fits taught "
-        "through a readout; its build preset draws views that show the basin and fits every model",
+        "through a readout; its build preset draws views that show the basin from 2,000 models and fits every one",
     ),
     "bottle": (dict(contrast=1.0, steps=6000, **_COSINE), {}, "contrast 1.0, cosine decay"),
     "car": (
