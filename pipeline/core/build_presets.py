@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-# What every quality-table build shares: 1,000 procedural models, 4 views x 2 pencil variants,
+# What every quality-table build shares: 1,000 procedural models (the bathtub 2,000), 4 views x 2 pencil variants,
 # drawn by the embree backend (BENCHMARKS.md, "Quality per category").
 _ROW: dict[str, Any] = {"models_per_category": 1000, "views": 4, "variants": 2}
 _EMBREE = {"backend": "embree"}
