@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.core.build_presets import PRESETS
+from pipeline.core.build_presets import BUILD_PRESETS, PRESETS
 from workflows.build_settings import BuildSettings
 
 SPELLED_OUT = dict(
@@ -155,7 +155,7 @@ def test_one_build_dataset_builds_every_category_with_its_preset(tmp_path: Path)
         settings = json.loads((tmp_path / "d" / name / "category.json").read_text())["settings"]
         # what differs from the category's own preset is the user's flags, nothing of the other's
         assert manifest_differences(name, settings) == [
-            f"models_per_category 1 (preset {1000 if name == 'airplane' else 2000})",
+            f"models_per_category 1 (preset {BUILD_PRESETS[name]['models_per_category']})",
             "render.views 1 (preset 4)",
             "augment.variants 1 (preset 2)",
         ]
