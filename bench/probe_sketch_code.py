@@ -21,8 +21,7 @@ import torch
 
 from pipeline.core.schema import PRESENT_PARTS
 from train.data import DataSettings, make_loader
-from train.fit import load_run
-from train.model import SketchToPatches
+from train.fit import build_network, load_run
 
 
 @torch.no_grad()
@@ -74,7 +73,7 @@ def main() -> None:
         model = None
     elif a.init:
         torch.manual_seed(s.seed)
-        model = SketchToPatches(tpl.initial_params(), encoder_width=s.encoder_width).eval()
+        model = build_network(s, tpl).eval()
     else:
         model = run.model
     parts = sorted(tpl.optional_parts)

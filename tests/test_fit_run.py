@@ -210,6 +210,19 @@ def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path
     assert ck["optimizer"]["param_groups"][0]["fused"]  # the fused Adam kernel on CPU
 
 
+def test_page_coordinates_and_a_pooling_grid_train_and_their_checkpoint_rebuilds_them(shards, tmp_path):
+    torch.set_num_threads(1)
+    out = tmp_path / "where"
+    fit(settings(shards, out, 2, encoder_width=8, page_coordinates=True, pool_grid=2), progress=False)
+    run = load_run(out / "checkpoint.pt")
+    assert run.settings.page_coordinates and run.settings.pool_grid == 2
+    assert run.model.encoder.stem[0].in_channels == 3 and run.model.encoder.out_features == 8 * 8 * 4
+    x = torch.rand(2, 1, 1, 32, 32)
+    assert torch.equal(run.model(x), run.model(x))  # the weights loaded into the network they came from
+    with pytest.raises(SettingError, match="pool_grid"):
+        FitSettings(**{**settings(shards, out, 1).__dict__, "pool_grid": 0})
+
+
 def test_gradient_clipping_bounds_the_update_and_logs_the_norm(shards, tmp_path):
     from train.fit import train_step
     from train.model import SketchToPatches, TrainingNet

@@ -84,3 +84,33 @@ def test_input_blur_feeds_the_drawing_and_two_ink_fields():
     m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=8, input_blur=2.0).eval()
     assert m.encoder.stem[0].in_channels == 3
     assert torch.equal(m(torch.rand(2, 1, 1, 32, 32)), torch.linspace(-1, 1, 30).expand(2, 30))
+
+
+def test_page_coordinates_tell_the_encoder_where_the_ink_lies():
+    from train.model import PageCoordinates
+
+    x = torch.zeros(2, 1, 5, 7)
+    f = PageCoordinates()(x)
+    assert f.shape == (2, 3, 5, 7) and torch.equal(f[:, :1], x)
+    assert torch.allclose(f[0, 1, 0], torch.linspace(-1, 1, 7)) and torch.allclose(
+        f[0, 2, :, 0], torch.linspace(-1, 1, 5)
+    )
+    m = SketchToPatches(torch.linspace(-1, 1, 30), encoder_width=8, page_coordinates=True, input_blur=2.0).eval()
+    assert m.encoder.stem[0].in_channels == 5  # the drawing, two ink fields, x and y
+    assert m.fields(torch.zeros(1, 1, 16, 16))[0, 3:].abs().amax() == 1.0
+    assert torch.equal(m(torch.rand(2, 1, 1, 32, 32)), torch.linspace(-1, 1, 30).expand(2, 30))
+
+
+def test_a_pooling_grid_keeps_each_cell_of_the_page_apart():
+    from train.resnet import ResNet18
+
+    torch.manual_seed(0)
+    enc = ResNet18(1, 8, grid=2).eval()
+    assert enc.out_features == 256
+    x = torch.rand(1, 1, 64, 64)
+    cells = enc.blocks(enc.stem(x))  # (1, 64, 2, 2) at 64²
+    assert torch.allclose(enc(x), cells.flatten(1), atol=1e-6)
+    one = ResNet18(1, 8).eval()
+    one.load_state_dict(enc.state_dict())
+    # the global code is the mean of the four cells' codes
+    assert torch.allclose(one(x), enc(x).view(1, 64, 4).mean(-1), atol=1e-6)

@@ -85,6 +85,16 @@ class FitSettings:
         "feed the encoder two more channels, the drawing blurred at this sigma and 3x it (px at "
         "--image-size; 0: the drawing alone, as in the paper)",
     )
+    page_coordinates: bool = setting(
+        False,
+        "feed the encoder two more channels, x and y across the page (CoordConv; not in the paper): "
+        "where on the page the ink lies, which convolutions alone do not see",
+    )
+    pool_grid: int = setting(
+        1,
+        "average the encoder's last stage over this many cells a side and keep them apart (1: one "
+        "global average, as in ResNet-18; 2: a 2x2 layout, 4x the code's features; not in the paper)",
+    )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
     val_every: int = setting(0, "validation Chamfer every N steps; keeps RUN_DIR/best.pt (0: off)")
@@ -162,6 +172,7 @@ class FitSettings:
             "checkpoint_every",
             "log_every",
             "basis_directions",
+            "pool_grid",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
         for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
@@ -368,17 +379,25 @@ def _saved_template(path: str | Path, ckpt: dict) -> Template:
         raise UsageError(f"{path}: its template does not load ({one_line(exc)})") from None
 
 
+def build_network(settings: FitSettings, template: Template, basis: torch.Tensor | None = None) -> SketchToPatches:
+    """The network a run's settings describe, at the template (untrained): what ``fit`` trains and
+    ``load_run`` loads weights into."""
+    return SketchToPatches(
+        template.initial_params(),
+        encoder_width=settings.encoder_width,
+        basis=basis,
+        input_blur=settings.input_blur,
+        page_coordinates=settings.page_coordinates,
+        pool_grid=settings.pool_grid,
+    )
+
+
 def load_run(path: str | Path) -> TrainedRun:
     """The run saved at ``path`` (``checkpoint.pt`` or ``best.pt``), on the CPU."""
     ckpt = load_checkpoint(path)
     settings = _saved_settings(path, ckpt)
     template = _saved_template(path, ckpt)
-    model = SketchToPatches(
-        template.initial_params(),
-        encoder_width=settings.encoder_width,
-        basis=saved_basis(ckpt),
-        input_blur=settings.input_blur,
-    )
+    model = build_network(settings, template, saved_basis(ckpt))
     try:
         model.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:  # torch lists every mismatch, one a line
@@ -669,9 +688,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     )
     basis = saved_basis(ckpt) if ckpt is not None else _new_basis(settings, template, info, out)
     torch.manual_seed(settings.seed)  # same initial weights on every rank
-    model = SketchToPatches(
-        template.initial_params(), encoder_width=settings.encoder_width, basis=basis, input_blur=settings.input_blur
-    )
+    model = build_network(settings, template, basis)
     if ckpt is None and settings.init_encoder:
         _start_body_from(model, settings.init_encoder)
     model = place_network(model, info.device, settings.precision)

@@ -43,6 +43,19 @@ class InkFields(nn.Module):
         return torch.cat(out, dim=1)
 
 
+class PageCoordinates(nn.Module):
+    """(N, C, H, W) → the same with two more channels, x and y across the page from −1 to 1
+    (CoordConv, Liu et al. 2018): convolutions alone cannot tell where on the page ink lies, and
+    proportions (where a guitar's waist sits, how wide its body is against its length) are
+    positions."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n, _, h, w = x.shape
+        ys = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype).view(1, 1, h, 1).expand(n, 1, h, w)
+        xs = torch.linspace(-1.0, 1.0, w, device=x.device, dtype=x.dtype).view(1, 1, 1, w).expand(n, 1, h, w)
+        return torch.cat([x, xs, ys], dim=1)
+
+
 class BasisReadout(nn.Module):
     """features (B, F) -> parameters (B, D) = bias + (features @ weight.T) @ basis.
 
@@ -73,12 +86,17 @@ class SketchToPatches(nn.Module):
         encoder_width: int = 64,
         basis: torch.Tensor | None = None,
         input_blur: float = 0.0,
+        page_coordinates: bool = False,
+        pool_grid: int = 1,
     ):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        self.fields = InkFields(input_blur) if input_blur > 0 else nn.Identity()
-        self.encoder = ResNet18(3 if input_blur > 0 else 1, encoder_width)
+        fields: list[nn.Module] = [InkFields(input_blur)] if input_blur > 0 else []
+        fields += [PageCoordinates()] if page_coordinates else []
+        self.fields = nn.Sequential(*fields) if fields else nn.Identity()
+        channels = 1 + (2 if input_blur > 0 else 0) + (2 if page_coordinates else 0)
+        self.encoder = ResNet18(channels, encoder_width, pool_grid)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.

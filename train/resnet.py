@@ -1,6 +1,8 @@
 """ResNet-18 image encoder (He et al. 2016), written here because torchvision has no CPU build.
 
-Single-channel input (a sketch); the output is the globally average-pooled feature (512-d).
+Single-channel input (a sketch); the output is the globally average-pooled feature (512-d), or
+with ``grid`` > 1 the last stage's features averaged over a grid × grid layout of the image and
+laid end to end (where on the page a feature fires survives the pooling).
 """
 
 from __future__ import annotations
@@ -32,13 +34,18 @@ class ResNet18(nn.Module):
     """ResNet-18: stem, four stages of two BasicBlocks (64, 128, 256, 512 channels), global pool.
 
     ``width`` scales every stage (``width`` × 1, 2, 4, 8 channels; 64 is ResNet-18 itself): the
-    cost of a convolution grows with the square of its channels, so 32 costs about a quarter."""
+    cost of a convolution grows with the square of its channels, so 32 costs about a quarter.
+    ``grid``: the last stage is averaged over grid × grid cells of the image (1: globally, as in
+    ResNet-18), so the code has 8 × width × grid² features."""
 
-    def __init__(self, in_channels: int = 1, width: int = 64):
+    def __init__(self, in_channels: int = 1, width: int = 64, grid: int = 1):
         super().__init__()
         if width < 1:
             raise ValueError(f"encoder width must be a positive number of channels, got {width}")
-        self.out_features = 8 * width
+        if grid < 1:
+            raise ValueError(f"encoder pooling grid must be at least 1 cell a side, got {grid}")
+        self.grid = grid
+        self.out_features = 8 * width * grid * grid
         self.stem = nn.Sequential(
             nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
             nn.BatchNorm2d(width),
@@ -56,5 +63,5 @@ class ResNet18(nn.Module):
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(N, C, H, W) images -> (N, 8 × width) codes (512 for ResNet-18)."""
-        return torch.flatten(nn.functional.adaptive_avg_pool2d(self.blocks(self.stem(x)), 1), 1)
+        """(N, C, H, W) images -> (N, 8 × width × grid²) codes (512 for ResNet-18)."""
+        return torch.flatten(nn.functional.adaptive_avg_pool2d(self.blocks(self.stem(x)), self.grid), 1)
