@@ -38,6 +38,8 @@ def test_recipes_hold_their_rows_settings() -> None:
     assert (recipe("bathtub").lr, recipe("bathtub").output_lr_scale, recipe("bathtub").steps) == (3e-4, 0.1, 6000)
     assert (recipe("mug").output_lr_scale, recipe("mug").steps) == (0.3, 4000)
     assert (recipe("guitar").weights.collision, recipe("guitar").contrast) == (0.3, 0.1)
+    # the Chamfer term weighed up only where the distances are smallest (read more at two seeds)
+    assert {n: recipe(n).weights.chamfer for n in RECIPES if recipe(n).weights.chamfer != 1.0} == {"guitar": 3.0}
     # the paper's loss on both drawings of each sample where the categories underfit
     assert {n for n in RECIPES if recipe(n).pair_loss} == {"bathtub", "guitar"}
     assert recipe("guitar").pair_loss == 1.0
