@@ -88,7 +88,7 @@ class FitSettings:
     page_coordinates: bool = setting(
         False,
         "feed the encoder two more channels, x and y across the page (CoordConv; not in the paper): "
-        "where on the page the ink lies, which convolutions alone do not see",
+        "where on the page the ink lies, handed to the first convolution",
     )
     pool_grid: int = setting(
         1,

@@ -45,9 +45,9 @@ class InkFields(nn.Module):
 
 class PageCoordinates(nn.Module):
     """(N, C, H, W) → the same with two more channels, x and y across the page from −1 to 1
-    (CoordConv, Liu et al. 2018): convolutions alone cannot tell where on the page ink lies, and
-    proportions (where a guitar's waist sits, how wide its body is against its length) are
-    positions."""
+    (CoordConv, Liu et al. 2018): a convolution sees a stroke's shape, and only through padding and
+    strides where it lies, while proportions (where a guitar's waist sits, how wide its body is
+    against its length) are positions."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n, _, h, w = x.shape
