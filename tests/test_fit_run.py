@@ -217,8 +217,16 @@ def test_page_coordinates_and_a_pooling_grid_train_and_their_checkpoint_rebuilds
     run = load_run(out / "checkpoint.pt")
     assert run.settings.page_coordinates and run.settings.pool_grid == 2
     assert run.model.encoder.stem[0].in_channels == 3 and run.model.encoder.out_features == 8 * 8 * 4
-    x = torch.rand(2, 1, 1, 32, 32)
-    assert torch.equal(run.model(x), run.model(x))  # the weights loaded into the network they came from
+    # a checkpoint whose settings describe another network is refused, naming the file
+    ck = load_checkpoint(out / "checkpoint.pt")
+    ck["settings"]["pool_grid"] = 1
+    torch.save(ck, out / "other.pt")
+    with pytest.raises(UsageError, match=r"other\.pt: its weights do not fit the network its settings describe"):
+        load_run(out / "other.pt")
+    # and a default run cannot start from its encoder: the message names the file and the flags
+    start = settings(shards, tmp_path / "from", 1, encoder_width=8, init_encoder=str(out / "checkpoint.pt"))
+    with pytest.raises(UsageError, match=r"checkpoint\.pt: its network cannot start this one .*--pool-grid"):
+        fit(start, progress=False)
     with pytest.raises(SettingError, match="pool_grid"):
         FitSettings(**{**settings(shards, out, 1).__dict__, "pool_grid": 0})
 

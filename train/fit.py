@@ -666,7 +666,10 @@ def _start_body_from(model: SketchToPatches, path: str) -> None:
     missing = [k for k in own if k.startswith(("encoder.", "hidden.")) and k not in body]
     if wrong or missing:
         what = f"{wrong[0]!r} does not fit" if wrong else f"it has no {missing[0]!r}"
-        raise UsageError(f"{path}: its network cannot start this one ({what}; same --encoder-width and --input-blur?)")
+        raise UsageError(
+            f"{path}: its network cannot start this one ({what}; same --encoder-width, --input-blur, "
+            "--page-coordinates and --pool-grid?)"
+        )
     model.load_state_dict(body, strict=False)
 
 

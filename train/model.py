@@ -21,6 +21,8 @@ class InkFields(nn.Module):
     each scaled by σ·√(2π) so a line keeps about its darkness): thin strokes reach the first
     convolution as broad fields, how far a pixel lies from ink."""
 
+    extra_channels = 2  # the two blurs, beside the drawing
+
     def __init__(self, sigma: float):
         super().__init__()
         kernels = []
@@ -48,6 +50,8 @@ class PageCoordinates(nn.Module):
     (CoordConv, Liu et al. 2018): a convolution sees a stroke's shape, and only through padding and
     strides where it lies, while proportions (where a guitar's waist sits, how wide its body is
     against its length) are positions."""
+
+    extra_channels = 2  # x and y, beside what comes in
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n, _, h, w = x.shape
@@ -92,11 +96,10 @@ class SketchToPatches(nn.Module):
         super().__init__()
         initial_params = torch.as_tensor(initial_params, dtype=torch.float32).reshape(-1)
         self.num_params = int(initial_params.numel())
-        fields: list[nn.Module] = [InkFields(input_blur)] if input_blur > 0 else []
+        fields: list[InkFields | PageCoordinates] = [InkFields(input_blur)] if input_blur > 0 else []
         fields += [PageCoordinates()] if page_coordinates else []
         self.fields = nn.Sequential(*fields) if fields else nn.Identity()
-        channels = 1 + (2 if input_blur > 0 else 0) + (2 if page_coordinates else 0)
-        self.encoder = ResNet18(channels, encoder_width, pool_grid)
+        self.encoder = ResNet18(1 + sum(f.extra_channels for f in fields), encoder_width, pool_grid)
         dims = (self.encoder.out_features,) + tuple(hidden)
         # One Linear+BatchNorm+ReLU per hidden layer; kept separate so the first hidden layer's
         # activation (the latent used for interpolation) is reachable.
