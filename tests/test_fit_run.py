@@ -213,7 +213,8 @@ def test_a_narrow_encoder_trains_and_its_checkpoint_rebuilds_it(shards, tmp_path
 def test_page_coordinates_and_a_pooling_grid_train_and_their_checkpoint_rebuilds_them(shards, tmp_path):
     torch.set_num_threads(1)
     out = tmp_path / "where"
-    fit(settings(shards, out, 2, encoder_width=8, page_coordinates=True, pool_grid=2), progress=False)
+    # 64 px: the last stage is 2×2 cells, so a 2×2 grid keeps each one
+    fit(settings(shards, out, 2, encoder_width=8, image_size=64, page_coordinates=True, pool_grid=2), progress=False)
     run = load_run(out / "checkpoint.pt")
     assert run.settings.page_coordinates and run.settings.pool_grid == 2
     assert run.model.encoder.stem[0].in_channels == 3 and run.model.encoder.out_features == 8 * 8 * 4
@@ -229,6 +230,10 @@ def test_page_coordinates_and_a_pooling_grid_train_and_their_checkpoint_rebuilds
         fit(start, progress=False)
     with pytest.raises(SettingError, match="pool_grid"):
         FitSettings(**{**settings(shards, out, 1).__dict__, "pool_grid": 0})
+    # finer than the last stage's cells (4 a side at 128²) would only copy cells
+    assert FitSettings(**{**settings(shards, out, 1).__dict__, "image_size": 128, "pool_grid": 4}).pool_grid == 4
+    with pytest.raises(SettingError, match=r"pool_grid must be at most 4 at --image-size 128, got 5 \(--pool-grid\)"):
+        FitSettings(**{**settings(shards, out, 1).__dict__, "image_size": 128, "pool_grid": 5})
 
 
 def test_gradient_clipping_bounds_the_update_and_logs_the_norm(shards, tmp_path):

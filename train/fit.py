@@ -39,6 +39,7 @@ from train.losses.weights import LossWeights, only_term
 from train.model import SketchToPatches, TrainingNet
 from train.objective import Objective
 from train.precision import PRECISIONS, network_autocast, place_network
+from train.resnet import last_stage_cells
 from train.sketch_input import Framing
 from train.templates import Template, TemplateError, load_template
 from train.weight_average import WeightAverage
@@ -93,7 +94,8 @@ class FitSettings:
     pool_grid: int = setting(
         1,
         "average the encoder's last stage over this many cells a side and keep them apart (1: one "
-        "global average, as in ResNet-18; 2: a 2x2 layout, 4x the code's features; not in the paper)",
+        "global average, as in ResNet-18; 2: a 2x2 layout, 4x the code's features; at most the last stage's "
+        "cells, 4 at --image-size 128: nothing pooled; not in the paper)",
     )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
@@ -175,6 +177,9 @@ class FitSettings:
             "pool_grid",
         ):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 1, "an integer >= 1")
+        # a grid finer than the last stage's map would only copy its cells: more features, nothing new
+        cells = last_stage_cells(self.image_size)
+        _require(self, "pool_grid", self.pool_grid <= cells, f"at most {cells} at --image-size {self.image_size}")
         for name in ("warmup_steps", "workers", "val_every", "fit_anneal_steps", "shape_basis"):
             _require(self, name, _is_int(getattr(self, name)) and getattr(self, name) >= 0, "an integer >= 0")
         _require(self, "lr", _is_number(self.lr) and 0 < self.lr < math.inf, "a learning rate > 0")

@@ -11,6 +11,15 @@ import torch
 from torch import nn
 
 
+def last_stage_cells(image_size: int) -> int:
+    """Cells a side of the last stage's feature map for ``image_size``² input: the stem's
+    convolution and pooling and three stages each halve it (rounding up), 32× in all (128 → 4)."""
+    cells = image_size
+    for _ in range(5):
+        cells = (cells + 1) // 2
+    return cells
+
+
 class BasicBlock(nn.Module):
     """Two 3x3 convolutions with a residual shortcut (1x1 projection when the shape changes)."""
 
