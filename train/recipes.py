@@ -66,8 +66,9 @@ _RECIPES: dict[str, tuple[dict, dict[str, float], str]] = {
     "guitar": (
         dict(contrast=0.1, steps=5900, **_COSINE, **_PAIR, **_VIEWS),
         # Chamfer weight 3: the guitar's distances are the smallest of the eight (blind mean 0.034), so
-        # the regularizers at every category's weights pull harder against its Chamfer term; +2.3 and
-        # +2.7 points vs blind at seeds 0 and 1 (docs/experiments.md)
+        # the other terms at every category's weights (regularizers, contrastive term) pull harder against
+        # its Chamfer term; +2.3 and +2.7 points vs blind at seeds 0 and 1. Weight 10 reads a point or
+        # two more but a change of pen then moves the answer past the person's-drawing goal (docs/experiments.md)
         {"chamfer": 3.0, "collision": 0.3, **_FOLD},
         "contrast 0.1, cosine decay, Chamfer weight 3, collision weight 0.3, fold term 1.0 (CAD-clean "
         "predictions), the loss on both drawings of each sample, one to four views a sample",
