@@ -46,7 +46,8 @@ def _load(path: Path) -> dict | None:
 
 
 def vs(evaluation: dict, baseline: str) -> float:
-    """The network's L_Ch against ``baseline``'s ('template' or 'blind'), in percent."""
+    """The network's L_Ch against ``baseline``'s ('template' or 'blind'), in percent: the ratio of
+    the means, as `evaluate`'s ``chamfer_vs_*`` keys, which files written before those keys lack."""
     return 100.0 * (evaluation["model"]["chamfer"] / evaluation[baseline]["chamfer"] - 1.0)
 
 
