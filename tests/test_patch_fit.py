@@ -167,6 +167,36 @@ def test_bad_model_fails_only_itself(built: Path, tmp_path: Path) -> None:
     assert status["00001"][0] == "failed" and "surface samples" in status["00001"][1]
 
 
+def test_a_template_edited_during_a_batch_leaves_it_to_fit_again(built: Path, tmp_path: Path, monkeypatch) -> None:
+    """The fit key holds the template files' content: a template edited while a batch fits moves
+    the key, and the batch is marked done beside its models, not under the new key (where the
+    shards would find it done and its models missing, as a 2,000-bathtub build once did)."""
+    import shutil
+
+    monkeypatch.chdir(tmp_path)  # ./templates/ (a fit's user templates) is this test's own
+    s = settings(tmp_path / "b", fit_overrides='{"steps": 3, "points": 600}')
+    lst = {"category": CATEGORY, "models": [{"model_id": "00000", "work_id": "00000"}]}
+    shutil.copytree(settings(built).stage_dir("prepare"), s.stage_dir("prepare"))
+    steps._write_batch(s, "prepare", lst, 0, [{**m, "stage": "prepare", "status": "ok"} for m in lst["models"]], 0.0)
+    before = s.stage_dir("fit")
+    real = steps._run_fit_job
+
+    def fit_then_edit(*args):
+        answer = real(*args)
+        Path("templates").mkdir()
+        Path("templates/mine.json").write_text("{}")  # a user's template saved mid-batch
+        return answer
+
+    monkeypatch.setattr(steps, "_run_fit_job", fit_then_edit)
+    doc = steps.fit_step(s, lst, 0)
+    assert doc["models"][0]["status"] == "ok"
+    assert s.stage_dir("fit") != before  # the key moved
+    marker = steps.batch_path(s, "fit", lst, 0)
+    assert (before / marker.relative_to(s.stage_dir("fit"))).exists()  # done where its model is
+    assert (before / CATEGORY / "00000" / "record.json").exists()
+    assert not marker.exists()  # under the new key: not done, so Luigi fits it again
+
+
 def test_fit_isolates_a_model_whose_fit_raises() -> None:
     from train.patch_fit import Target, _fit_isolating
     from train.templates import load_template

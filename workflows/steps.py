@@ -100,7 +100,17 @@ def _outcome(m: dict, stage: str, rec: dict | None) -> dict:
     return out
 
 
-def _write_batch(s: BuildSettings, stage: str, lst: dict, batch: int, outcomes: list[dict], t0: float, **extra) -> dict:
+def _write_batch(
+    s: BuildSettings,
+    stage: str,
+    lst: dict,
+    batch: int,
+    outcomes: list[dict],
+    t0: float,
+    stage_dir: Path | None = None,
+    **extra,
+) -> dict:
+    """The batch's outcome file, in ``stage_dir`` when given: the folder its models were written to."""
     # wall seconds are kept in the work folder only (never in shards or manifest) for stage shares
     doc = {
         "stage": stage,
@@ -110,7 +120,8 @@ def _write_batch(s: BuildSettings, stage: str, lst: dict, batch: int, outcomes: 
         "seconds": round(time.perf_counter() - t0, 3),
         **extra,
     }
-    write_json(batch_path(s, stage, lst, batch), doc)
+    path = batch_path(s, stage, lst, batch)
+    write_json(path if stage_dir is None else stage_dir / path.relative_to(s.stage_dir(stage)), doc)
     return doc
 
 
@@ -247,17 +258,28 @@ def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None)
         entries.append({**{k: m[k] for k in ("model_id", "work_id")}, "path": path, "names": names, "present": present})
     if progress is not None:
         progress(0, len(ok), f"fit {category} batch {batch}: fitting {len(entries)} models")
-    answer = _run_fit_job(s, category, entries, arrays) if entries else {"cpu_seconds": 0.0}
+    answer = _run_fit_job(s, category, entries, arrays, stage) if entries else {"cpu_seconds": 0.0}
     outcomes = failed + [_outcome(m, "fit", read_record(model_dir(stage, category, m["work_id"]))) for m in ok]
     if progress is not None:
         progress(len(ok), len(ok), f"fit {category} batch {batch}: done")
+    # The fit key holds the template files' content, read from disk: a template edited while the
+    # batch ran changes it, so the batch is marked done where its models went (a re-run then fits
+    # it again under the new key), never in a folder that lacks them.
     return _write_batch(
-        s, "fit", lst, batch, sorted(outcomes, key=lambda m: m["model_id"]), t0, cpu_seconds=answer["cpu_seconds"]
+        s,
+        "fit",
+        lst,
+        batch,
+        sorted(outcomes, key=lambda m: m["model_id"]),
+        t0,
+        stage_dir=stage,
+        cpu_seconds=answer["cpu_seconds"],
     )
 
 
-def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: dict) -> dict:
-    """Hand the batch to ``python -m train.patch_fit`` in a job folder of its own; its answer."""
+def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: dict, stage: Path) -> dict:
+    """Hand the batch to ``python -m train.patch_fit`` in a job folder of its own (its records go
+    to ``stage``, the fit stage's folder); its answer."""
     import shutil
     import subprocess
     import sys
@@ -268,7 +290,6 @@ def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: d
     from pipeline.core.schema import FIT_JOB_FILE, FIT_RESULT_FILE, FIT_TARGETS_FILE
     from pipeline.core.stage_keys import settings_dict
 
-    stage = s.stage_dir("fit")
     (stage / category).mkdir(parents=True, exist_ok=True)
     job_dir = Path(tempfile.mkdtemp(prefix="_job-", dir=stage / category))
     try:
