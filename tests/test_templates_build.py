@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from train.templates.authoring.build import DATA_DIR
+from train.data import param_mirror
+from train.templates.authoring.build import DATA_DIR, MIRROR_PLANE
 from train.templates.authoring.checks import (
     closed_manifold_problems,
     euler_characteristic,
@@ -148,10 +149,13 @@ def test_built_category_template_is_valid(category):
     assert chi % 2 == 0 and chi <= 2 * 8  # closed orientable surfaces
     if category == "mug":
         assert chi == 0  # the handle's hole
-    if category in ("airplane", "car"):  # the paper's symmetry loss: airplanes and cars only
+    if category in MIRROR_PLANE:  # declared: flipped drawings in training, --mirror-average
         assert 2 * len(tpl.symmetry.pairs) + len(tpl.symmetry.self_points) == tpl.num_points
+        assert param_mirror(tpl) is not None
     else:
         assert tpl.symmetry is None
+    # the paper's symmetry loss: airplanes and cars only
+    assert ("symmetry" in tpl.regularizers) == (category in ("airplane", "car"))
     assert (DATA_DIR / f"{category}.png").exists()
 
 
