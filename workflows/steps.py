@@ -50,7 +50,12 @@ def batch_models(s: BuildSettings, lst: dict, batch: int) -> list[dict]:
 def batch_path(s: BuildSettings, stage: str, lst: dict, batch: int) -> Path:
     """A batch's outcome file, named by the work ids it holds: a batch whose models (or their
     content) changed is a new batch, an unchanged one stays done whatever else was added."""
-    return s.stage_dir(stage) / lst["category"] / BATCHES / batch_name(s, lst, batch)
+    return batch_file(s.stage_dir(stage), s, lst, batch)
+
+
+def batch_file(stage_dir: Path, s: BuildSettings, lst: dict, batch: int) -> Path:
+    """``batch_path`` under a stage folder already resolved (where the batch's models went)."""
+    return stage_dir / lst["category"] / BATCHES / batch_name(s, lst, batch)
 
 
 def batch_name(s: BuildSettings, lst: dict, batch: int) -> str:
@@ -120,8 +125,7 @@ def _write_batch(
         "seconds": round(time.perf_counter() - t0, 3),
         **extra,
     }
-    path = batch_path(s, stage, lst, batch)
-    write_json(path if stage_dir is None else stage_dir / path.relative_to(s.stage_dir(stage)), doc)
+    write_json(batch_file(stage_dir or s.stage_dir(stage), s, lst, batch), doc)
     return doc
 
 
