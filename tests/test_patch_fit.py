@@ -197,6 +197,51 @@ def test_a_template_edited_during_a_batch_leaves_it_to_fit_again(built: Path, tm
     assert not marker.exists()  # under the new key: not done, so Luigi fits it again
 
 
+def test_the_fit_loads_the_template_its_key_names(built: Path, tmp_path: Path, monkeypatch) -> None:
+    """The fit stage reads the template once: a template file edited after the stage keyed its
+    folder, as the fit process starts, is not what that folder's fits are made from."""
+    import shutil
+
+    from train.patch_fit import template_sha256
+    from train.templates import load_template, save_template
+
+    monkeypatch.chdir(tmp_path)
+    save_template(load_template(CATEGORY), "mine.json")
+    want = template_sha256(load_template("mine.json"))
+    s = settings(tmp_path / "b", fit_overrides='{"steps": 3, "points": 600, "templates": ["knife=mine.json"]}')
+    lst = {"category": CATEGORY, "models": [{"model_id": "00000", "work_id": "00000"}]}
+    shutil.copytree(settings(built).stage_dir("prepare"), s.stage_dir("prepare"))
+    steps._write_batch(s, "prepare", lst, 0, [{**m, "stage": "prepare", "status": "ok"} for m in lst["models"]], 0.0)
+    keyed = s.stage_dir("fit")
+    real = steps._run_fit_job
+
+    def edit_then_fit(*args):
+        save_template(load_template("sphere24"), "mine.json")  # saved over as the process starts
+        return real(*args)
+
+    monkeypatch.setattr(steps, "_run_fit_job", edit_then_fit)
+    assert steps.fit_step(s, lst, 0)["models"][0]["status"] == "ok"
+    record = json.loads((keyed / CATEGORY / "00000" / schema.RECORD).read_text())
+    assert record["template_sha256"] == want  # the key's content, not the sphere saved over it
+    assert record["patches"] == load_template(CATEGORY).num_patches
+
+
+def test_a_template_snapshot_is_the_content_its_key_holds(tmp_path: Path, monkeypatch) -> None:
+    from train.templates import BUILTIN
+    from workflows.build_settings import template_fingerprints, template_snapshot
+
+    monkeypatch.chdir(tmp_path)
+    prints = template_fingerprints(())
+    data, path = template_snapshot(CATEGORY, prints)
+    assert path.name == f"{CATEGORY}.json" and data == path.read_bytes()
+    for name in BUILTIN:  # built in code: no file to read, even where one of that name lies
+        Path("templates").mkdir(exist_ok=True)
+        Path("templates", f"{name}.json").write_text("{}")
+        assert template_snapshot(name, template_fingerprints(())) is None
+    with pytest.raises(ValueError, match=rf"{CATEGORY}\.json: the template changed"):
+        template_snapshot(CATEGORY, {**prints, f"builtin/{CATEGORY}.json": "0" * 64})
+
+
 def test_fit_isolates_a_model_whose_fit_raises() -> None:
     from train.patch_fit import Target, _fit_isolating
     from train.templates import load_template

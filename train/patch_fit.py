@@ -173,7 +173,8 @@ def run_job(job_path: str | Path) -> dict:
     todo = [i for i, e in enumerate(entries) if read_record(stage_dir / category / e["work_id"]) is None]
     fitted_n = 0
     try:
-        template = load_template(job["template"])
+        # the file as the stage's key saw it, when the stage snapshotted one (a built-in has none)
+        template = load_template(job_path.parent / job["template_file"] if "template_file" in job else job["template"])
     except Exception as exc:  # a missing or broken template fails every model of the category, each recorded
         if is_fatal(exc):
             raise

@@ -71,6 +71,29 @@ def template_fingerprints(named: tuple[str, ...]) -> dict[str, str]:
     return out
 
 
+def template_snapshot(ref: str, fingerprints: dict[str, str]) -> tuple[bytes, Path] | None:
+    """The bytes of the file a fit's template ``ref`` loads (resolved as
+    train.templates.load_template resolves it) and its path, read once; None for a template
+    that is no file (sphere24). Raises ValueError naming the file when they are not the content
+    ``fingerprints`` (``template_fingerprints``, which key the fit stage) hold: it changed since."""
+    import hashlib
+
+    if ref in ("sphere24", "sphere54"):  # the trainer's templates built in code (train.templates.BUILTIN)
+        return None
+    by_name = (
+        []
+        if "/" in ref
+        else [(f"{w}/{ref}.json", d / f"{ref}.json") for w, d in zip(("builtin", "user"), TEMPLATE_DIRS)]
+    )
+    entry, path = next(((k, p) for k, p in by_name if p.is_file()), (f"file/{Path(ref).name}", Path(ref)))
+    if not path.is_file():
+        return None  # no such template: the fit records it failed, naming it
+    data = path.read_bytes()
+    if fingerprints.get(entry) != hashlib.sha256(data).hexdigest():
+        raise ValueError(f"{path}: the template changed while the fit stage read it; run the build again")
+    return data, path
+
+
 @functools.lru_cache(maxsize=16)
 def _read_map(path: str, mtime_ns: int, size: int) -> tuple[tuple[str, str | None], ...]:
     return tuple(read_part_map(path).items())
@@ -269,13 +292,12 @@ class BuildSettings:
             "augment", {"augment": settings_dict(self.augment_settings()), "seed": self.seed}, self.render_key()
         )
 
-    def fit_key(self) -> str:
+    def fit_key(self, templates: dict[str, str] | None = None) -> str:
+        """The fit stage's key; ``templates``: the template fingerprints to key it with (read now
+        when None), so a step that snapshots a template keys its folder with what it read."""
         fit = self.fit_settings()
-        return stage_key(
-            "fit",
-            {"fit": settings_dict(fit), "seed": self.seed, "templates": template_fingerprints(fit.templates)},
-            self.prepare_key(),
-        )
+        prints = template_fingerprints(fit.templates) if templates is None else templates
+        return stage_key("fit", {"fit": settings_dict(fit), "seed": self.seed, "templates": prints}, self.prepare_key())
 
     def shards_key(self) -> str:
         settings = {"shards": settings_dict(self.shard_settings()), "seed": self.seed}

@@ -33,7 +33,7 @@ from pipeline.dataset.manifest import (
     write_manifest,
 )
 from pipeline.dataset.shards import ModelDirs, ShardSet, list_shards, retire_category, write_category_shards
-from workflows.build_settings import BuildSettings
+from workflows.build_settings import BuildSettings, template_fingerprints, template_snapshot
 from workflows.listing import duplicate_outcome, model_ref
 
 BATCHES = "_batches"
@@ -241,7 +241,13 @@ def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None)
 
     category = lst["category"]
     ok, failed = _upstream(s, "prepare", lst, batch)
-    fit, stage, prep = s.fit_settings(), s.stage_dir("fit"), s.stage_dir("prepare")
+    fit, prep = s.fit_settings(), s.stage_dir("prepare")
+    # The template is read once: the process fits these bytes and the folder is keyed by their
+    # fingerprint, so a template edited during the build cannot put one content's fits under
+    # another's key.
+    prints = template_fingerprints(fit.templates)
+    snapshot = template_snapshot(fit.template_for(category), prints)
+    stage = Path(s.work_dir) / s.fit_key(prints)
     entries: list[dict] = []
     arrays: dict = {}
     for m in ok:
@@ -262,7 +268,7 @@ def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None)
         entries.append({**{k: m[k] for k in ("model_id", "work_id")}, "path": path, "names": names, "present": present})
     if progress is not None:
         progress(0, len(ok), f"fit {category} batch {batch}: fitting {len(entries)} models")
-    answer = _run_fit_job(s, category, entries, arrays, stage) if entries else {"cpu_seconds": 0.0}
+    answer = _run_fit_job(s, category, entries, arrays, stage, snapshot) if entries else {"cpu_seconds": 0.0}
     outcomes = failed + [_outcome(m, "fit", read_record(model_dir(stage, category, m["work_id"]))) for m in ok]
     if progress is not None:
         progress(len(ok), len(ok), f"fit {category} batch {batch}: done")
@@ -281,9 +287,12 @@ def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None)
     )
 
 
-def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: dict, stage: Path) -> dict:
+def _run_fit_job(
+    s: BuildSettings, category: str, entries: list[dict], arrays: dict, stage: Path, snapshot: tuple[bytes, Path] | None
+) -> dict:
     """Hand the batch to ``python -m train.patch_fit`` in a job folder of its own (its records go
-    to ``stage``, the fit stage's folder); its answer."""
+    to ``stage``, the fit stage's folder); its answer. ``snapshot``: the template file's bytes as
+    the stage's key saw them, which the process loads instead of the file (None: a built-in)."""
     import shutil
     import subprocess
     import sys
@@ -291,16 +300,19 @@ def _run_fit_job(s: BuildSettings, category: str, entries: list[dict], arrays: d
 
     import numpy as np
 
-    from pipeline.core.schema import FIT_JOB_FILE, FIT_RESULT_FILE, FIT_TARGETS_FILE
+    from pipeline.core.schema import FIT_JOB_FILE, FIT_RESULT_FILE, FIT_TARGETS_FILE, FIT_TEMPLATE_FILE
     from pipeline.core.stage_keys import settings_dict
 
     (stage / category).mkdir(parents=True, exist_ok=True)
     job_dir = Path(tempfile.mkdtemp(prefix="_job-", dir=stage / category))
     try:
         np.savez(job_dir / FIT_TARGETS_FILE, **arrays)
+        if snapshot is not None:  # the job folder is scratch: a plain write
+            (job_dir / FIT_TEMPLATE_FILE).write_bytes(snapshot[0])
         job = {
             "category": category,
             "template": s.fit_settings().template_for(category),
+            **({"template_file": FIT_TEMPLATE_FILE} if snapshot is not None else {}),
             "settings": settings_dict(s.fit_settings()),
             "seed": s.seed,
             "stage_dir": str(stage),

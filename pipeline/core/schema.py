@@ -63,6 +63,8 @@ CAMERAS_FILE = "cameras.json"
 FIT_PARAMS_FILE = "fit_params.npy"  # the fit stage's per-model result (float32 (D,))
 # The fit stage's batch job, handed to its own process (train.patch_fit) and answered there.
 FIT_JOB_FILE = "fit_job.json"
+# the template file as the fit stage's key saw it, in the job folder: what the fit process loads
+FIT_TEMPLATE_FILE = "template.json"
 FIT_TARGETS_FILE = "fit_targets.npz"
 FIT_RESULT_FILE = "fit_result.json"
 STROKES_FILE = "strokes.json"
