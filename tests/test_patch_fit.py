@@ -167,17 +167,24 @@ def test_bad_model_fails_only_itself(built: Path, tmp_path: Path) -> None:
     assert status["00001"][0] == "failed" and "surface samples" in status["00001"][1]
 
 
+def one_model_batch(built: Path, root: Path, fit_overrides: str) -> tuple[BuildSettings, dict]:
+    """Settings under ``root`` and a one-model listing whose prepare batch is done (copied from
+    ``built``), ready for ``steps.fit_step``."""
+    import shutil
+
+    s = settings(root, fit_overrides=fit_overrides)
+    lst = {"category": CATEGORY, "models": [{"model_id": "00000", "work_id": "00000"}]}
+    shutil.copytree(settings(built).stage_dir("prepare"), s.stage_dir("prepare"))
+    steps._write_batch(s, "prepare", lst, 0, [{**m, "stage": "prepare", "status": "ok"} for m in lst["models"]], 0.0)
+    return s, lst
+
+
 def test_a_template_edited_during_a_batch_leaves_it_to_fit_again(built: Path, tmp_path: Path, monkeypatch) -> None:
     """The fit key holds the template files' content: a template edited while a batch fits moves
     the key, and the batch is marked done beside its models, not under the new key (where the
     shards would find it done and its models missing, as a 2,000-bathtub build once did)."""
-    import shutil
-
     monkeypatch.chdir(tmp_path)  # ./templates/ (a fit's user templates) is this test's own
-    s = settings(tmp_path / "b", fit_overrides='{"steps": 3, "points": 600}')
-    lst = {"category": CATEGORY, "models": [{"model_id": "00000", "work_id": "00000"}]}
-    shutil.copytree(settings(built).stage_dir("prepare"), s.stage_dir("prepare"))
-    steps._write_batch(s, "prepare", lst, 0, [{**m, "stage": "prepare", "status": "ok"} for m in lst["models"]], 0.0)
+    s, lst = one_model_batch(built, tmp_path / "b", '{"steps": 3, "points": 600}')
     before = s.stage_dir("fit")
     real = steps._run_fit_job
 
@@ -200,18 +207,13 @@ def test_a_template_edited_during_a_batch_leaves_it_to_fit_again(built: Path, tm
 def test_the_fit_loads_the_template_its_key_names(built: Path, tmp_path: Path, monkeypatch) -> None:
     """The fit stage reads the template once: a template file edited after the stage keyed its
     folder, as the fit process starts, is not what that folder's fits are made from."""
-    import shutil
-
     from train.patch_fit import template_sha256
     from train.templates import load_template, save_template
 
     monkeypatch.chdir(tmp_path)
     save_template(load_template(CATEGORY), "mine.json")
     want = template_sha256(load_template("mine.json"))
-    s = settings(tmp_path / "b", fit_overrides='{"steps": 3, "points": 600, "templates": ["knife=mine.json"]}')
-    lst = {"category": CATEGORY, "models": [{"model_id": "00000", "work_id": "00000"}]}
-    shutil.copytree(settings(built).stage_dir("prepare"), s.stage_dir("prepare"))
-    steps._write_batch(s, "prepare", lst, 0, [{**m, "stage": "prepare", "status": "ok"} for m in lst["models"]], 0.0)
+    s, lst = one_model_batch(built, tmp_path / "b", '{"steps": 3, "points": 600, "templates": ["knife=mine.json"]}')
     keyed = s.stage_dir("fit")
     real = steps._run_fit_job
 
