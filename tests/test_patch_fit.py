@@ -230,12 +230,11 @@ def test_the_fit_loads_the_template_its_key_names(built: Path, tmp_path: Path, m
 
 def test_a_template_snapshot_is_the_content_its_key_holds(tmp_path: Path, monkeypatch) -> None:
     from train.templates import BUILTIN
-    from workflows.build_settings import template_fingerprints, template_snapshot
+    from workflows.build_settings import TEMPLATE_DIRS, template_fingerprints, template_snapshot
 
     monkeypatch.chdir(tmp_path)
     prints = template_fingerprints(())
-    data, path = template_snapshot(CATEGORY, prints)
-    assert path.name == f"{CATEGORY}.json" and data == path.read_bytes()
+    assert template_snapshot(CATEGORY, prints) == (TEMPLATE_DIRS[0] / f"{CATEGORY}.json").read_bytes()
     for name in BUILTIN:  # built in code: no file to read, even where one of that name lies
         Path("templates").mkdir(exist_ok=True)
         Path("templates", f"{name}.json").write_text("{}")

@@ -71,10 +71,10 @@ def template_fingerprints(named: tuple[str, ...]) -> dict[str, str]:
     return out
 
 
-def template_snapshot(ref: str, fingerprints: dict[str, str]) -> tuple[bytes, Path] | None:
+def template_snapshot(ref: str, fingerprints: dict[str, str]) -> bytes | None:
     """The bytes of the file a fit's template ``ref`` loads (resolved as
-    train.templates.load_template resolves it) and its path, read once; None for a template
-    that is no file (sphere24). Raises ValueError naming the file when they are not the content
+    train.templates.load_template resolves it), read once; None for a template that is no file
+    (sphere24). Raises ValueError naming the file when they are not the content
     ``fingerprints`` (``template_fingerprints``, which key the fit stage) hold: it changed since."""
     import hashlib
 
@@ -91,7 +91,7 @@ def template_snapshot(ref: str, fingerprints: dict[str, str]) -> tuple[bytes, Pa
     data = path.read_bytes()
     if fingerprints.get(entry) != hashlib.sha256(data).hexdigest():
         raise ValueError(f"{path}: the template changed while the fit stage read it; run the build again")
-    return data, path
+    return data
 
 
 @functools.lru_cache(maxsize=16)

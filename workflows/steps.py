@@ -288,7 +288,7 @@ def fit_step(s: BuildSettings, lst: dict, batch: int, progress: Progress = None)
 
 
 def _run_fit_job(
-    s: BuildSettings, category: str, entries: list[dict], arrays: dict, stage: Path, snapshot: tuple[bytes, Path] | None
+    s: BuildSettings, category: str, entries: list[dict], arrays: dict, stage: Path, snapshot: bytes | None
 ) -> dict:
     """Hand the batch to ``python -m train.patch_fit`` in a job folder of its own (its records go
     to ``stage``, the fit stage's folder); its answer. ``snapshot``: the template file's bytes as
@@ -308,7 +308,7 @@ def _run_fit_job(
     try:
         np.savez(job_dir / FIT_TARGETS_FILE, **arrays)
         if snapshot is not None:  # the job folder is scratch: a plain write
-            (job_dir / FIT_TEMPLATE_FILE).write_bytes(snapshot[0])
+            (job_dir / FIT_TEMPLATE_FILE).write_bytes(snapshot)
         job = {
             "category": category,
             "template": s.fit_settings().template_for(category),
