@@ -30,6 +30,7 @@ from torch.nn.parallel import DistributedDataParallel
 from pipeline.core.atomic import atomic_path, dumps_json, write_bytes
 from pipeline.core.seeding import derive_seed
 from pipeline.core.settings_io import SettingError, flag_name, from_dict, setting
+from train.augmentation import Jitter
 from train.data import DataSettings, make_loader, param_mirror, shard_framing, shard_urls
 from train.distributed import DistInfo, from_main, mean_over_ranks, setup, teardown
 from train.errors import UsageError, one_line
@@ -96,6 +97,11 @@ class FitSettings:
         "average the encoder's last stage over this many cells a side and keep them apart (1: one "
         "global average, as in ResNet-18; 2: a 2x2 layout, 4x the code's features; at most the last stage's "
         "cells, 4 at --image-size 128: nothing pooled; not in the paper)",
+    )
+    min_crop: float = setting(
+        Jitter.min_crop,
+        "training jitter: each drawing is cropped to a random square of this fraction of its side or "
+        "more and resized back (a scale change of up to 1/min_crop); 1: drawn at the scale it was rendered",
     )
     checkpoint_every: int = setting(500, "write RUN_DIR/checkpoint.pt every N steps (and at the end)")
     log_every: int = setting(10, "a row of RUN_DIR/log.csv every N steps")
@@ -197,6 +203,7 @@ class FitSettings:
             _is_number(self.ema) and (self.ema == 0 or 0 < self.ema < 1),
             "0 (off) or a decay between 0 and 1",
         )
+        _require(self, "min_crop", _is_number(self.min_crop) and 0 < self.min_crop <= 1, "a fraction in (0, 1]")
         for name in ("clip_grad", "contrast", "pair_loss", "match_normals", "input_blur", "fit_readout"):
             value = getattr(self, name)
             if name == "match_normals" and value is None:  # the template file's, resolved by fit
@@ -678,6 +685,19 @@ def _start_body_from(model: SketchToPatches, path: str) -> None:
     model.load_state_dict(body, strict=False)
 
 
+def training_data(settings: FitSettings, template: Template) -> DataSettings:
+    """What the training stream draws for ``settings``: its views, points, image size, jitter, and
+    a second drawing of each model when a term needs one; drawings are mirrored at random only
+    where the template declares a mirror plane."""
+    return DataSettings(
+        max_views=settings.max_views,
+        n_points=settings.n_points,
+        image_size=settings.image_size,
+        pair=settings.contrast > 0 or settings.pair_loss > 0,
+        jitter=Jitter(min_crop=settings.min_crop, flip=template.symmetry is not None),
+    )
+
+
 def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     out = Path(settings.out)
     if out.exists() and not out.is_dir():
@@ -718,14 +738,7 @@ def _fit(settings: FitSettings, info: DistInfo, progress: bool) -> dict:
     trained = model if average is not None else None
     net: torch.nn.Module = DistributedDataParallel(trainee) if info.enabled else trainee
     objective = Objective(template, settings.n_points, match_normals=settings.match_normals)
-    data = DataSettings(
-        max_views=settings.max_views,
-        n_points=settings.n_points,
-        image_size=settings.image_size,
-        pair=settings.contrast > 0 or settings.pair_loss > 0,
-    )
-    if template.symmetry is not None:
-        data = dataclasses.replace(data, jitter=dataclasses.replace(data.jitter, flip=True))
+    data = training_data(settings, template)
     # A resumed run draws a fresh, still seeded data order keyed by the step it resumes from.
     loader = make_loader(
         settings.dataset,
