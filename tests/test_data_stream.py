@@ -85,5 +85,8 @@ def test_jitter_keeps_paper_white_and_flip_mirrors():
     rng = np.random.default_rng(0)
     out = jitter_image(img, rng, Jitter(max_rotation_deg=0, min_crop=1.0), flip=True)
     assert out[0, 0] == 255 and out[15, 32 - 6] == 0 and out[15, 5] == 255
+    # no crop and no rotation (fit --min-crop 1.0 with the rotation off): the drawing as rendered
+    still = Jitter(max_rotation_deg=0, min_crop=1.0)
+    assert all(np.array_equal(jitter_image(img, np.random.default_rng(s), still, False), img) for s in range(5))
     moved = jitter_image(img, np.random.default_rng(1), Jitter(), flip=False)
     assert moved.shape == img.shape and not np.array_equal(moved, img) and moved.min() < 128
