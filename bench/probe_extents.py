@@ -32,8 +32,8 @@ import torch
 import webdataset as wds
 
 from pipeline.core.atomic import write_json
-from train.data import DataSettings, shard_urls
-from train.evaluate import _batches, blind_output
+from train.data import DataSettings, make_loader, shard_urls, splits_with_shards
+from train.evaluate import blind_output
 from train.fit import load_run
 from train.geometry.sampling import sample_surface_uniform
 from train.objective import Objective
@@ -88,6 +88,18 @@ def first_view_directions(dataset: str, category: str, split: str) -> dict[str, 
     return out
 
 
+def batches(dataset: str, category: str, split: str, data: DataSettings, size: int):
+    """The evaluation batches of ``split`` (or of every split with shards: "all")."""
+    for name in splits_with_shards(dataset, category, split):
+        yield from make_loader(dataset, category, name, data, 0, size, train=False)
+
+
+def surface_samples(patches: torch.Tensor, present: torch.Tensor | None, n: int, generator) -> np.ndarray:
+    """Area-uniform samples of one answer's patches, those of absent optional parts left out."""
+    chosen = patches if present is None else patches[present]
+    return sample_surface_uniform(chosen, n, generator)[0].double().numpy()
+
+
 @torch.no_grad()
 def probe(checkpoint: str, dataset: str, split: str = "test", n_points: int = 4000) -> dict:
     run = load_run(checkpoint)
@@ -95,17 +107,20 @@ def probe(checkpoint: str, dataset: str, split: str = "test", n_points: int = 40
     data = DataSettings(eval_views=1, eval_variant=0, n_points=n_points, image_size=s.image_size)
     blind = blind_output(model, dataset, s.category, data)[None]
     sight = first_view_directions(dataset, s.category, split)
+    objective = Objective(template, n_points)
     generator = torch.Generator().manual_seed(0)
     rows = []  # |cos|, true (3), network (3), blind (3)
-    for batch in _batches(dataset, s.category, split, data, 8):
+    for batch in batches(dataset, s.category, split, data, 8):
         params = model(batch["images"], batch["view_mask"])
         predicted = template.patches_from_params(params)
         mean = template.patches_from_params(blind.expand_as(params))
+        mask = objective.patch_mask(batch["meta"], params.device)
         for b, key in enumerate(batch["key"]):
             target = batch["points"][b, :, :3].double().numpy()
             axes = principal_axes(target)
-            net = sample_surface_uniform(predicted[b], n_points, generator)[0].double().numpy()
-            bl = sample_surface_uniform(mean[b], n_points, generator)[0].double().numpy()
+            present = None if mask is None else mask[b]
+            net = surface_samples(predicted[b], present, n_points, generator)
+            bl = surface_samples(mean[b], present, n_points, generator)
             facing = abs(float(sight[key] @ axes[:, 2]))
             rows.append([facing, *extents(target, axes), *extents(net, axes), *extents(bl, axes)])
     r = np.asarray(rows)
@@ -134,18 +149,21 @@ def probe_fitted(dataset: str, category: str, split: str = "test", shapes: int =
     template = load_template(category)
     n_points = 4000
     data = DataSettings(eval_views=1, n_points=n_points, image_size=64)
-    batch = next(iter(_batches(dataset, category, split, data, shapes)))
+    batch = next(iter(batches(dataset, category, split, data, shapes)))
+    objective = Objective(template, n_points)
     with torch.enable_grad():
-        params = fit_to_targets(Objective(template, n_points), batch, steps)
+        params = fit_to_targets(objective, batch, steps)
     fitted = template.patches_from_params(params)
     mean = template.patches_from_params(params.mean(0, keepdim=True).expand_as(params))
+    mask = objective.patch_mask(batch["meta"], params.device)
     generator = torch.Generator().manual_seed(0)
     rows = []
     for b in range(len(params)):
         target = batch["points"][b, :, :3].double().numpy()
         axes = principal_axes(target)
-        fit = sample_surface_uniform(fitted[b], n_points, generator)[0].double().numpy()
-        bl = sample_surface_uniform(mean[b], n_points, generator)[0].double().numpy()
+        present = None if mask is None else mask[b]
+        fit = surface_samples(fitted[b], present, n_points, generator)
+        bl = surface_samples(mean[b], present, n_points, generator)
         rows.append([*extents(target, axes), *extents(fit, axes), *extents(bl, axes)])
     return {"fitted": category, "steps": steps, "split": split, "all": summarize(np.asarray(rows)), "by_view": {}}
 
