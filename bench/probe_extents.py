@@ -32,8 +32,8 @@ import torch
 import webdataset as wds
 
 from pipeline.core.atomic import write_json
-from train.data import DataSettings, make_loader, shard_urls, splits_with_shards
-from train.evaluate import blind_output
+from train.data import DataSettings, shard_urls
+from train.evaluate import blind_output, evaluation_batches
 from train.fit import load_run
 from train.geometry.sampling import sample_surface_uniform
 from train.objective import Objective
@@ -88,41 +88,43 @@ def first_view_directions(dataset: str, category: str, split: str) -> dict[str, 
     return out
 
 
-def batches(dataset: str, category: str, split: str, data: DataSettings, size: int):
-    """The evaluation batches of ``split`` (or of every split with shards: "all")."""
-    for name in splits_with_shards(dataset, category, split):
-        yield from make_loader(dataset, category, name, data, 0, size, train=False)
-
-
-def surface_samples(patches: torch.Tensor, present: torch.Tensor | None, n: int, generator) -> np.ndarray:
-    """Area-uniform samples of one answer's patches, those of absent optional parts left out."""
-    chosen = patches if present is None else patches[present]
-    return sample_surface_uniform(chosen, n, generator)[0].double().numpy()
+def extent_rows(
+    objective: Objective, answers: torch.Tensor, blind: torch.Tensor, batch: dict, generator: torch.Generator
+) -> list[list[float]]:
+    """Per batch item: the target's extents along its principal axes, then the answer's and the
+    blind answer's along the same axes (9 values), and last the axes (3, 3) for the caller.
+    Patches of optional parts the target lacks are left out, as ``evaluate`` does."""
+    template = objective.template
+    answered = template.patches_from_params(answers)
+    mean = template.patches_from_params(blind.expand_as(answers))
+    mask = objective.patch_mask(batch["meta"], answers.device)
+    rows = []
+    for b in range(len(answers)):
+        target = batch["points"][b, :, :3].double().numpy()
+        axes = principal_axes(target)
+        found = []
+        for patches in (answered[b], mean[b]):
+            chosen = patches if mask is None else patches[mask[b]]
+            samples = sample_surface_uniform(chosen, len(target), generator)[0].double().numpy()
+            found.extend(extents(samples, axes))
+        rows.append([*extents(target, axes), *found, axes])
+    return rows
 
 
 @torch.no_grad()
 def probe(checkpoint: str, dataset: str, split: str = "test", n_points: int = 4000) -> dict:
     run = load_run(checkpoint)
-    s, template, model = run.settings, run.template, run.model
+    s, model = run.settings, run.model
     data = DataSettings(eval_views=1, eval_variant=0, n_points=n_points, image_size=s.image_size)
     blind = blind_output(model, dataset, s.category, data)[None]
     sight = first_view_directions(dataset, s.category, split)
-    objective = Objective(template, n_points)
+    objective = Objective(run.template, n_points)
     generator = torch.Generator().manual_seed(0)
     rows = []  # |cos|, true (3), network (3), blind (3)
-    for batch in batches(dataset, s.category, split, data, 8):
+    for batch in evaluation_batches(dataset, s.category, split, data, 8):
         params = model(batch["images"], batch["view_mask"])
-        predicted = template.patches_from_params(params)
-        mean = template.patches_from_params(blind.expand_as(params))
-        mask = objective.patch_mask(batch["meta"], params.device)
-        for b, key in enumerate(batch["key"]):
-            target = batch["points"][b, :, :3].double().numpy()
-            axes = principal_axes(target)
-            present = None if mask is None else mask[b]
-            net = surface_samples(predicted[b], present, n_points, generator)
-            bl = surface_samples(mean[b], present, n_points, generator)
-            facing = abs(float(sight[key] @ axes[:, 2]))
-            rows.append([facing, *extents(target, axes), *extents(net, axes), *extents(bl, axes)])
+        for key, (*found, axes) in zip(batch["key"], extent_rows(objective, params, blind, batch, generator)):
+            rows.append([abs(float(sight[key] @ axes[:, 2])), *found])
     r = np.asarray(rows)
     groups = {}
     for lo, hi, name in VIEW_GROUPS:
@@ -146,25 +148,14 @@ def summarize(r: np.ndarray) -> dict:
 @torch.no_grad()
 def probe_fitted(dataset: str, category: str, split: str = "test", shapes: int = 48, steps: int = 300) -> dict:
     """The same reading for the template fitted to each of the first ``shapes`` targets."""
-    template = load_template(category)
     n_points = 4000
     data = DataSettings(eval_views=1, n_points=n_points, image_size=64)
-    batch = next(iter(batches(dataset, category, split, data, shapes)))
-    objective = Objective(template, n_points)
+    batch = next(iter(evaluation_batches(dataset, category, split, data, shapes)))
+    objective = Objective(load_template(category), n_points)
     with torch.enable_grad():
         params = fit_to_targets(objective, batch, steps)
-    fitted = template.patches_from_params(params)
-    mean = template.patches_from_params(params.mean(0, keepdim=True).expand_as(params))
-    mask = objective.patch_mask(batch["meta"], params.device)
     generator = torch.Generator().manual_seed(0)
-    rows = []
-    for b in range(len(params)):
-        target = batch["points"][b, :, :3].double().numpy()
-        axes = principal_axes(target)
-        present = None if mask is None else mask[b]
-        fit = surface_samples(fitted[b], present, n_points, generator)
-        bl = surface_samples(mean[b], present, n_points, generator)
-        rows.append([*extents(target, axes), *extents(fit, axes), *extents(bl, axes)])
+    rows = [found for *found, _ in extent_rows(objective, params, params.mean(0, keepdim=True), batch, generator)]
     return {"fitted": category, "steps": steps, "split": split, "all": summarize(np.asarray(rows)), "by_view": {}}
 
 

@@ -249,7 +249,7 @@ def evaluate(
     count = 0
     base = template.initial_params()[None]
     verdicts = []
-    for batch in _batches(dataset, cat, split, data, batch_size):
+    for batch in evaluation_batches(dataset, cat, split, data, batch_size):
         params = model(batch["images"], batch["view_mask"])
         if len(verdicts) < cad_check:
             verdicts += [v.clean for v in cad_verdicts(objective, params[: cad_check - len(verdicts)], batch["meta"])]
@@ -289,7 +289,7 @@ def evaluate(
     return result
 
 
-def _batches(dataset: str | Path, category: str, split: str, data: DataSettings, batch_size: int):
+def evaluation_batches(dataset: str | Path, category: str, split: str, data: DataSettings, batch_size: int):
     """The evaluation batches of one split, or of every split with shards (``split`` "all")."""
     for name in splits_with_shards(dataset, category, split):
         yield from make_loader(dataset, category, name, data, 0, batch_size, train=False)
